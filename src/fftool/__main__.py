@@ -1,0 +1,5 @@
+"""`python -m fftool` runs the CLI."""
+
+from fftool.cli import app
+
+app()

@@ -1,0 +1,119 @@
+"""Every knob on one page: one frozen pydantic model per stage, and a strict loader.
+
+A pipeline file (`pipelines/*.toml`) overrides the defaults and `--set section.key=value` overrides the
+file. Unknown keys and type mismatches raise `ConfigError` naming the key. Each stage's fingerprint
+hashes only its own section (resolved, defaults included), so changing a default rebuilds that stage.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from fftool.errors import ConfigError
+from fftool.scenes import DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on 3.10 only
+    import tomli as tomllib
+
+DEFAULT_RAW_DIR = "../shared/data/eth_ucy/raw"
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class DataConfig(_Section):
+    """Where raw inputs live. Paths are not fingerprinted: raw files enter by content hash."""
+
+    raw_dir: str = DEFAULT_RAW_DIR
+
+
+class IngestConfig(_Section):
+    """Parsing and validation of the raw Social-GAN text files (stage `tracks`)."""
+
+    # Raw frame ids step by this many video frames; a row off this stride is an error.
+    frame_stride: int = Field(FRAME_STRIDE, gt=0)
+    # Seconds per step; recorded so later stages never assume it (0.4 s, see scenes.DT_S).
+    dt_s: float = Field(DT_S, gt=0)
+    # A (frame, ped) row repeated with identical x, y: "warn" drops the copy and records it in the
+    # manifest, "error" refuses the file. Repeats with different positions are always errors.
+    duplicates: Literal["warn", "error"] = "warn"
+
+
+class WindowsConfig(_Section):
+    """Slicing tracks into 8 + 12 step windows for each leave-one-out benchmark (stage `windows`)."""
+
+    obs_len: int = Field(OBS_LEN, gt=0)
+    pred_len: int = Field(PRED_LEN, gt=0)
+    # Steps between consecutive window start frames; 1 is the benchmark protocol.
+    window_stride: int = Field(1, gt=0)
+
+
+class PipelineConfig(_Section):
+    """The whole pipeline's configuration, as resolved from defaults, a file and overrides."""
+
+    data: DataConfig = DataConfig()
+    ingest: IngestConfig = IngestConfig()
+    windows: WindowsConfig = WindowsConfig()
+
+
+def _parse_value(text: str) -> Any:
+    """Read an override value as TOML (numbers, booleans, lists, quoted strings), else a bare string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(raw: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Apply `section.key=value` strings to a nested dict; unknown sections fail in validation."""
+    merged = {k: dict(v) if isinstance(v, dict) else v for k, v in raw.items()}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        parts = key.strip().split(".")
+        if not sep or len(parts) != 2 or not all(parts):
+            raise ConfigError(f"override {item!r}: expected section.key=value, e.g. ingest.frame_stride=10")
+        section, name = parts
+        target = merged.setdefault(section, {})
+        if not isinstance(target, dict):
+            raise ConfigError(f"override {item!r}: {section!r} is not a section")
+        target[name] = _parse_value(value.strip())
+    return merged
+
+
+def _describe(error: ValidationError, origin: str) -> str:
+    lines = []
+    for issue in error.errors():
+        key = ".".join(str(part) for part in issue["loc"])
+        if issue["type"] == "extra_forbidden":
+            lines.append(f"unknown key {key!r}")
+        else:
+            lines.append(f"{key}: {issue['msg']} (got {issue.get('input')!r})")
+    return f"invalid configuration in {origin}: " + "; ".join(lines)
+
+
+def load_config(path: Path | None = None, overrides: list[str] | None = None) -> PipelineConfig:
+    """Resolve defaults ← TOML file ← overrides into a validated `PipelineConfig`."""
+    raw: dict[str, Any] = {}
+    origin = "defaults"
+    if path is not None:
+        origin = str(path)
+        try:
+            raw = tomllib.loads(Path(path).read_text())
+        except FileNotFoundError as exc:
+            raise ConfigError(f"{path}: no such pipeline file") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    if overrides:
+        raw = apply_overrides(raw, overrides)
+        origin = f"{origin} with overrides {overrides}"
+    try:
+        return PipelineConfig.model_validate(raw)
+    except ValidationError as exc:
+        raise ConfigError(_describe(exc, origin)) from exc

@@ -1,0 +1,51 @@
+"""One root exception and small subclasses; messages say what went wrong and what to do.
+
+The CLI turns every `FftoolError` into `Error: <message>` and exit code 1. Library code never prints
+errors or exits.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class FftoolError(Exception):
+    """Root of every error fftool reports to a user."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+class ConfigError(FftoolError, ValueError):
+    """A configuration key is unknown, has the wrong type or an invalid value."""
+
+
+class RawDataError(FftoolError, ValueError):
+    """A raw input file is missing or malformed; names the file and, where known, the line."""
+
+    def __init__(self, path: Path | str, problem: str, line_no: int | None = None) -> None:
+        where = f"{path}:{line_no}" if line_no is not None else f"{path}"
+        super().__init__(f"{where}: {problem}")
+        self.path = Path(path)
+        self.line_no = line_no
+        self.problem = problem
+
+
+class ArtifactMissing(FftoolError, FileNotFoundError):
+    """A stage needs an artifact that has not been built for these parameters."""
+
+
+class SchemaError(FftoolError):
+    """An artifact has the wrong kind or schema version for the stage that reads it."""
+
+
+class IntegrityError(FftoolError):
+    """An artifact's files no longer match the hashes in its manifest."""
+
+
+class FetchError(FftoolError):
+    """A download failed or its checksum did not match."""

@@ -1,0 +1,121 @@
+"""Validate every raw ETH/UCY file and store them as one Parquet table.
+
+Reads: the raw Social-GAN text files (8 sources × all/train/val). Writes: `tracks/<fp>/tracks.parquet`.
+Run: `fftool ingest --raw ../shared/data/eth_ucy/raw`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from fftool.config import IngestConfig
+from fftool.errors import RawDataError
+from fftool.hashing import sha256_file
+from fftool.rawfiles import RawTable, read_raw
+from fftool.scenes import SOURCES, SPLITS, raw_relpath
+from fftool.schema import TRACKS_FILE, TRACKS_SCHEMA
+
+NAME: Final = "tracks"
+VERSION: Final = 1
+
+
+def raw_files(raw_dir: Path) -> dict[tuple[str, str], Path]:
+    """The 24 expected raw files by (source, split); one error listing every missing one."""
+    if not raw_dir.is_dir():
+        raise RawDataError(raw_dir, "raw data directory not found (run `fftool fetch-data` to download it)")
+    expected = {(source, split): raw_dir / raw_relpath(source, split) for source in SOURCES for split in SPLITS}
+    missing = sorted(raw_relpath(*key) for key, path in expected.items() if not path.is_file())
+    if missing:
+        shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
+        raise RawDataError(
+            raw_dir,
+            f"missing {len(missing)} of {len(expected)} expected Social-GAN files: {shown} "
+            "(expected all_data/<source>.txt, train/<source>_train.txt, val/<source>_val.txt)",
+        )
+    return expected
+
+
+def raw_input_hashes(raw_dir: Path) -> dict[str, str]:
+    """Content hashes of the raw files: the tracks fingerprint depends on bytes, not on paths."""
+    return {f"raw/{raw_relpath(*key)}": sha256_file(path) for key, path in raw_files(raw_dir).items()}
+
+
+def _check_train_val(tables: Mapping[tuple[str, str], RawTable]) -> list[str]:
+    """train + val should equal all, row for row; a mismatch is recorded as a warning."""
+    warnings = []
+    for source in SOURCES:
+        whole, train, val = (tables[(source, split)] for split in SPLITS)
+        if len(train) + len(val) != len(whole):
+            warnings.append(
+                f"{source}: train ({len(train)} rows) + val ({len(val)} rows) != all ({len(whole)} rows)"
+            )
+        elif train.frame_id.max() >= val.frame_id.min():
+            warnings.append(f"{source}: train and val overlap in time")
+    return warnings
+
+
+def build(
+    cfg: IngestConfig,
+    raw_dir: Path,
+    out_dir: Path,
+    on_file: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Parse and validate every raw file, write tracks.parquet, return the manifest stats.
+
+    Args:
+        cfg: the `ingest` section of the configuration.
+        raw_dir: folder holding all_data/, train/ and val/.
+        out_dir: the artifact's build folder.
+        on_file: called with each file's relative path after it is read (progress).
+    """
+    tables: dict[tuple[str, str], RawTable] = {}
+    for (source, split), path in raw_files(raw_dir).items():
+        tables[(source, split)] = read_raw(path, cfg.frame_stride, cfg.duplicates)
+        if on_file:
+            on_file(raw_relpath(source, split))
+
+    columns: dict[str, list[np.ndarray]] = {name: [] for name in TRACKS_SCHEMA.names}
+    files = {}
+    for (source, split), table in tables.items():
+        order = np.lexsort((table.ped_id, table.frame_id))
+        n = len(table)
+        columns["source"].append(np.full(n, source, dtype=object))
+        columns["split"].append(np.full(n, split, dtype=object))
+        columns["frame_id"].append(table.frame_id[order])
+        columns["step"].append(table.frame_id[order] // cfg.frame_stride)
+        columns["ped_id"].append(table.ped_id[order])
+        columns["x"].append(table.x[order])
+        columns["y"].append(table.y[order])
+        steps = np.unique(table.frame_id)
+        files[raw_relpath(source, split)] = {
+            "rows": n,
+            "pedestrians": int(np.unique(table.ped_id).size),
+            "frames": int(steps.size),
+            "first_frame_id": int(steps[0]),
+            "last_frame_id": int(steps[-1]),
+            # The smallest gap between consecutive frames actually seen: the data's own stride.
+            "observed_stride": int(np.diff(steps).min()) if steps.size > 1 else None,
+        }
+    arrays = [
+        pa.array(np.concatenate(columns[name])).dictionary_encode().cast(fld.type)
+        if pa.types.is_dictionary(fld.type)
+        else pa.array(np.concatenate(columns[name]), type=fld.type)
+        for name, fld in zip(TRACKS_SCHEMA.names, TRACKS_SCHEMA)
+    ]
+    pq.write_table(pa.Table.from_arrays(arrays, schema=TRACKS_SCHEMA), out_dir / TRACKS_FILE)
+
+    warnings = [w for table in tables.values() for w in table.warnings] + _check_train_val(tables)
+    return {
+        "rows": int(sum(len(t) for t in tables.values())),
+        "frame_stride": cfg.frame_stride,
+        "dt_s": cfg.dt_s,
+        "files": files,
+        "warnings": warnings,
+    }
+

@@ -1,0 +1,132 @@
+"""The stage DAG: fingerprints, skip-if-built, atomic builds, in dependency order.
+
+    raw ETH/UCY txt ──▶ tracks ──▶ windows
+
+Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
+fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
+stage when `<root>/<stage>/<fp[:16]>/` holds a complete artifact, and builds it atomically otherwise.
+Only this module knows every stage; stages never import each other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from fftool import ingest, windows
+from fftool.config import PipelineConfig
+from fftool.errors import FftoolError
+from fftool.hashing import fingerprint
+from fftool.store import Artifact, ArtifactStore, BuildContext, check_schema
+from fftool.ui import log, progress, warn
+
+Builder = Callable[[PipelineConfig, Mapping[str, Artifact], BuildContext], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One node of the DAG: what it is called, what it reads, how it is configured and built."""
+
+    name: str
+    version: int
+    inputs: tuple[str, ...]
+    command: str  # the CLI command that makes it, for error messages
+    section: Callable[[PipelineConfig], BaseModel]
+    build: Builder
+    external_inputs: Callable[[PipelineConfig], dict[str, str]] = lambda cfg: {}
+
+
+def _build_tracks(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext) -> dict[str, Any]:
+    raw_dir = Path(cfg.data.raw_dir)
+    with progress() as bar:
+        task = bar.add_task("ingest raw files", total=24)
+        stats = ingest.build(cfg.ingest, raw_dir, ctx.dir, on_file=lambda _: bar.advance(task))
+    for message in stats["warnings"]:
+        warn(message)
+    return stats
+
+
+def _build_windows(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext) -> dict[str, Any]:
+    return windows.build(cfg.windows, inputs["tracks"], ctx.dir)
+
+
+STAGES: dict[str, Stage] = {
+    stage.name: stage
+    for stage in (
+        Stage(
+            ingest.NAME,
+            ingest.VERSION,
+            (),
+            "fftool ingest",
+            lambda cfg: cfg.ingest,
+            _build_tracks,
+            lambda cfg: ingest.raw_input_hashes(Path(cfg.data.raw_dir)),
+        ),
+        Stage(windows.NAME, windows.VERSION, windows.INPUTS, "fftool ingest", lambda cfg: cfg.windows, _build_windows),
+    )
+}
+
+
+def plan(targets: Iterable[str]) -> list[Stage]:
+    """Stages needed for `targets`, upstream first (DAG post-order), each once."""
+    ordered: list[Stage] = []
+
+    def visit(name: str) -> None:
+        if name not in STAGES:
+            raise FftoolError(f"unknown stage {name!r}; stages: {', '.join(STAGES)}")
+        stage = STAGES[name]
+        for upstream in stage.inputs:
+            visit(upstream)
+        if stage not in ordered:
+            ordered.append(stage)
+
+    for target in targets:
+        visit(target)
+    return ordered
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A planned stage with everything its fingerprint is made of."""
+
+    stage: Stage
+    params: dict[str, Any]
+    inputs: dict[str, str]  # upstream stage -> fingerprint, raw file -> sha256
+    fingerprint: str
+
+
+def resolve(cfg: PipelineConfig, targets: Iterable[str]) -> list[Resolved]:
+    """Plan `targets` and fingerprint each stage; upstream fingerprints chain into downstream ones."""
+    resolved: dict[str, Resolved] = {}
+    for stage in plan(targets):
+        params = stage.section(cfg).model_dump(mode="json")
+        inputs = {name: resolved[name].fingerprint for name in stage.inputs} | stage.external_inputs(cfg)
+        resolved[stage.name] = Resolved(stage, params, inputs, fingerprint(stage.name, stage.version, params, inputs))
+    return list(resolved.values())
+
+
+def run(
+    cfg: PipelineConfig, store: ArtifactStore, targets: Iterable[str], force: Iterable[str] = ()
+) -> dict[str, Artifact]:
+    """Build what is missing for `targets` (and rebuild the stages named in `force`)."""
+    forced = set(force)
+    built: dict[str, Artifact] = {}
+    for item in resolve(cfg, targets):
+        stage, fp = item.stage, item.fingerprint
+        existing = store.lookup(stage.name, fp)
+        if existing is not None and stage.name not in forced:
+            check_schema(existing, stage.name, stage.version, stage.command)
+            log(f"stage {stage.name!r} is cached (fp {fp[:12]}…) - skipping")
+            built[stage.name] = existing
+            continue
+        log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
+        with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
+            ctx.stats = stage.build(cfg, {name: built[name] for name in stage.inputs}, ctx)
+        assert ctx.artifact is not None
+        log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
+        built[stage.name] = ctx.artifact
+    return built

@@ -1,0 +1,77 @@
+"""ETH/UCY facts as typed constants: sources, benchmarks, the leave-one-out split, time base.
+
+Every number that describes the dataset lives here, so a reader finds the protocol on one page.
+"""
+
+from __future__ import annotations
+
+from typing import Final, Literal
+
+# Time base. Raw frame ids step by 10 in every Social-GAN file; one step is 0.4 s (2.5 Hz).
+# Known quirk: the ETH (biwi_eth) recording's real step is about 0.667 s (its annotations were made
+# every 6 video frames and re-numbered), but the community, and therefore the benchmark numbers,
+# treat every step as 0.4 s. We keep 0.4 s and record it in every manifest (docs/data.md).
+FRAME_STRIDE: Final[int] = 10
+DT_S: Final[float] = 0.4
+
+OBS_LEN: Final[int] = 8  # observed steps t = -7..0
+PRED_LEN: Final[int] = 12  # predicted steps t = 1..12
+WINDOW_LEN: Final[int] = OBS_LEN + PRED_LEN
+
+# The eight Social-GAN sources. crowds_zara03 and uni_examples are only ever used for training.
+SOURCES: Final[tuple[str, ...]] = (
+    "biwi_eth",
+    "biwi_hotel",
+    "crowds_zara01",
+    "crowds_zara02",
+    "crowds_zara03",
+    "students001",
+    "students003",
+    "uni_examples",
+)
+
+# A raw file is one "split" of a source: the whole recording, or its first (train) / last (val) part
+# in time. train + val = all, row for row.
+Split = Literal["all", "train", "val"]
+SPLITS: Final[tuple[Split, ...]] = ("all", "train", "val")
+SPLIT_DIRS: Final[dict[str, str]] = {"all": "all_data", "train": "train", "val": "val"}
+SPLIT_SUFFIX: Final[dict[str, str]] = {"all": "", "train": "_train", "val": "_val"}
+
+# The five benchmark scenes and the sources that make up each one's test part.
+BENCHMARK_TEST_SOURCES: Final[dict[str, tuple[str, ...]]] = {
+    "eth": ("biwi_eth",),
+    "hotel": ("biwi_hotel",),
+    "univ": ("students001", "students003"),  # uni_examples stays in training, as in AgentFormer
+    "zara1": ("crowds_zara01",),
+    "zara2": ("crowds_zara02",),
+}
+BENCHMARKS: Final[tuple[str, ...]] = tuple(BENCHMARK_TEST_SOURCES)
+
+Part = Literal["train", "val", "test"]
+PARTS: Final[tuple[Part, ...]] = ("train", "val", "test")
+
+
+def raw_relpath(source: str, split: str) -> str:
+    """Path of one raw file relative to the raw root, e.g. `train/biwi_eth_train.txt`."""
+    return f"{SPLIT_DIRS[split]}/{source}{SPLIT_SUFFIX[split]}.txt"
+
+
+def _leave_one_out() -> dict[str, dict[str, tuple[tuple[str, str], ...]]]:
+    """The leave-one-out table (Social-GAN, Trajectron++, AgentFormer; DESIGN §2).
+
+    test = the full files of the held-out scene; train/val = the `_train`/`_val` files of every
+    source that is not part of the held-out scene.
+    """
+    table: dict[str, dict[str, tuple[tuple[str, str], ...]]] = {}
+    for benchmark, test_sources in BENCHMARK_TEST_SOURCES.items():
+        others = tuple(s for s in SOURCES if s not in test_sources)
+        table[benchmark] = {
+            "train": tuple((s, "train") for s in others),
+            "val": tuple((s, "val") for s in others),
+            "test": tuple((s, "all") for s in test_sources),
+        }
+    return table
+
+
+# LEAVE_ONE_OUT[benchmark][part] = ((source, split), ...): the raw files that make up that part.
+LEAVE_ONE_OUT: Final[dict[str, dict[str, tuple[tuple[str, str], ...]]]] = _leave_one_out()

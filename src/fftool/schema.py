@@ -1,0 +1,63 @@
+"""Column names and Arrow schemas of every tabular artifact: the contract between stages.
+
+Stages never import each other; they agree on these names and file names instead.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import pyarrow as pa
+
+from fftool.scenes import WINDOW_LEN
+
+# --- tracks artifact ------------------------------------------------------------------------------
+TRACKS_FILE: Final = "tracks.parquet"
+TRACKS_SCHEMA: Final = pa.schema(
+    [
+        pa.field("source", pa.dictionary(pa.int8(), pa.string()), nullable=False),  # e.g. biwi_eth
+        pa.field("split", pa.dictionary(pa.int8(), pa.string()), nullable=False),  # all | train | val
+        pa.field("frame_id", pa.int64(), nullable=False),  # as in the raw file
+        pa.field("step", pa.int64(), nullable=False),  # frame_id // frame_stride
+        pa.field("ped_id", pa.int64(), nullable=False),
+        pa.field("x", pa.float64(), nullable=False),  # metres
+        pa.field("y", pa.float64(), nullable=False),  # metres
+    ]
+)
+
+# --- windows artifact -----------------------------------------------------------------------------
+# windows.parquet: one row per window (a current frame t0 with at least one valid agent) of each
+# benchmark part. The window covers steps first_step .. first_step + WINDOW_LEN - 1 of the raw file
+# (source, split); t0_step = first_step + obs_len - 1 is the last observed step. Every pedestrian
+# present at a step of the window (the neighbours) is found in tracks by (source, split, step).
+WINDOWS_FILE: Final = "windows.parquet"
+WINDOWS_SCHEMA: Final = pa.schema(
+    [
+        pa.field("benchmark", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+        pa.field("part", pa.dictionary(pa.int8(), pa.string()), nullable=False),  # train | val | test
+        pa.field("window_id", pa.int64(), nullable=False),  # 0.. within (benchmark, part)
+        pa.field("source", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+        pa.field("split", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+        pa.field("first_step", pa.int64(), nullable=False),
+        pa.field("t0_step", pa.int64(), nullable=False),
+        pa.field("t0_frame_id", pa.int64(), nullable=False),
+        pa.field("n_agents", pa.int32(), nullable=False),  # valid agents (present at all steps)
+        pa.field("n_present", pa.int32(), nullable=False),  # pedestrians present at any step
+    ]
+)
+
+# agent_windows.parquet: one row per valid agent-window, positions at all WINDOW_LEN steps,
+# laid out step-major: xy[2*t], xy[2*t + 1] = x, y at step first_step + t.
+AGENT_WINDOWS_FILE: Final = "agent_windows.parquet"
+
+
+def agent_windows_schema(window_len: int = WINDOW_LEN) -> pa.Schema:
+    return pa.schema(
+        [
+            pa.field("benchmark", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+            pa.field("part", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+            pa.field("window_id", pa.int64(), nullable=False),
+            pa.field("ped_id", pa.int64(), nullable=False),
+            pa.field("xy", pa.list_(pa.float64(), 2 * window_len), nullable=False),
+        ]
+    )

@@ -1,0 +1,202 @@
+"""Slice tracks into 8 + 12 step windows for every leave-one-out benchmark part.
+
+Reads: tracks. Writes: `windows/<fp>/windows.parquet` (one row per window) and `agent_windows.parquet`
+(one row per valid agent-window with its 20 positions). Run: `fftool ingest` (builds both stages).
+
+A window is `obs_len + pred_len` consecutive steps of one raw file; an agent-window is valid when the
+pedestrian is present at every one of them. Everything is vectorised over rows: no Python loop over
+pedestrians or steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from fftool.config import WindowsConfig
+from fftool.scenes import BENCHMARKS, LEAVE_ONE_OUT, PARTS
+from fftool.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE, WINDOWS_SCHEMA, agent_windows_schema
+from fftool.store import Artifact
+
+NAME: Final = "windows"
+VERSION: Final = 1
+INPUTS: Final = ("tracks",)
+
+
+@dataclass(frozen=True)
+class SequenceWindows:
+    """The windows of one raw file (one source and split)."""
+
+    first_step: np.ndarray  # (W,) first step of each window with >= 1 valid agent
+    t0_step: np.ndarray  # (W,) last observed step
+    t0_frame_id: np.ndarray  # (W,) raw frame id of the last observed step
+    n_agents: np.ndarray  # (W,) valid agents per window
+    n_present: np.ndarray  # (W,) pedestrians present at any step of the window
+    agent_window: np.ndarray  # (M,) index into the W windows of each valid agent-window
+    agent_ped: np.ndarray  # (M,) ped_id
+    agent_xy: np.ndarray  # (M, L, 2) positions at the L window steps
+    candidates: int  # window start steps considered (with or without valid agents)
+    pedestrians: int
+    frames: int
+
+
+def slice_sequence(
+    step: np.ndarray,
+    ped_id: np.ndarray,
+    frame_id: np.ndarray,
+    xy: np.ndarray,
+    window_len: int,
+    obs_len: int,
+    window_stride: int = 1,
+) -> SequenceWindows:
+    """Every valid agent-window of one raw file.
+
+    Rows are runs of consecutive steps per pedestrian; a run of length n holds n - window_len + 1
+    windows. Window starts are on the grid min_step + k * window_stride.
+    """
+    order = np.lexsort((step, ped_id))  # (N,) by pedestrian, then step
+    s, p = step[order], ped_id[order]
+    new_run = np.r_[True, (p[1:] != p[:-1]) | (s[1:] != s[:-1] + 1)]
+    run_first_row = np.flatnonzero(new_run)  # (R,)
+    run_len = np.diff(np.r_[run_first_row, len(s)])  # (R,)
+    starts_per_run = np.maximum(run_len - window_len + 1, 0)
+    run_of = np.repeat(np.arange(run_first_row.size), starts_per_run)  # (M0,)
+    offset = np.arange(run_of.size) - np.repeat(np.cumsum(starts_per_run) - starts_per_run, starts_per_run)
+    row0 = run_first_row[run_of] + offset  # (M0,) sorted-row index of each agent-window's first step
+    min_step, max_step = int(step.min()), int(step.max())
+    row0 = row0[(s[row0] - min_step) % window_stride == 0]
+
+    first = s[row0]
+    by_window = np.lexsort((p[row0], first))  # agent-windows ordered by window, then ped_id
+    row0, first = row0[by_window], first[by_window]
+    window_first, agent_window, n_agents = np.unique(first, return_inverse=True, return_counts=True)
+    rows = order[row0[:, None] + np.arange(window_len)]  # (M, L) original row of each step
+
+    n_steps = max_step - min_step + 1
+    candidates = max(0, (n_steps - window_len) // window_stride + 1)
+    return SequenceWindows(
+        first_step=window_first,
+        t0_step=window_first + obs_len - 1,
+        t0_frame_id=frame_id[rows[np.searchsorted(first, window_first), obs_len - 1]]
+        if rows.size
+        else np.zeros(0, np.int64),
+        n_agents=n_agents.astype(np.int32),
+        n_present=_present_counts(step - min_step, ped_id, window_first - min_step, window_len, n_steps),
+        agent_window=agent_window.astype(np.int64),
+        agent_ped=p[row0],
+        agent_xy=xy[rows],
+        candidates=candidates,
+        pedestrians=int(np.unique(ped_id).size),
+        frames=int(np.unique(step).size),
+    )
+
+
+def _present_counts(
+    local_step: np.ndarray, ped_id: np.ndarray, window_first: np.ndarray, window_len: int, n_steps: int
+) -> np.ndarray:
+    """Pedestrians present at any step of each window, via a peds × steps presence prefix sum."""
+    _, ped_index = np.unique(ped_id, return_inverse=True)
+    presence = np.zeros((ped_index.max() + 1, n_steps + 1), dtype=np.int32)  # (P, S+1)
+    presence[ped_index, local_step + 1] = 1
+    cumulative = presence.cumsum(axis=1)
+    inside = cumulative[:, window_first + window_len] - cumulative[:, window_first]  # (P, W)
+    return (inside > 0).sum(axis=0).astype(np.int32)
+
+
+def build(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
+    """Write windows.parquet and agent_windows.parquet for every benchmark part; return the summary.
+
+    Args:
+        cfg: the `windows` section of the configuration.
+        tracks: the tracks artifact to slice.
+        out_dir: the artifact's build folder.
+    """
+    window_len = cfg.obs_len + cfg.pred_len
+    table = pq.read_table(tracks.file(TRACKS_FILE)).to_pandas()
+    sequences: dict[tuple[str, str], SequenceWindows] = {}
+    for (source, split), rows in table.groupby(["source", "split"], observed=True, sort=False):
+        sequences[(str(source), str(split))] = slice_sequence(
+            rows["step"].to_numpy(),
+            rows["ped_id"].to_numpy(),
+            rows["frame_id"].to_numpy(),
+            rows[["x", "y"]].to_numpy(),
+            window_len,
+            cfg.obs_len,
+            cfg.window_stride,
+        )
+
+    window_parts, agent_parts, summary = [], [], []
+    for benchmark in BENCHMARKS:
+        for part in PARTS:
+            members = LEAVE_ONE_OUT[benchmark][part]
+            windows, agents = _assemble(benchmark, part, members, sequences)
+            window_parts.append(windows)
+            agent_parts.append(agents)
+            summary.append(
+                {
+                    "benchmark": benchmark,
+                    "part": part,
+                    "sources": [f"{source}:{split}" for source, split in members],
+                    "candidate_windows": sum(sequences[m].candidates for m in members),
+                    "windows": windows.num_rows,
+                    "agent_windows": agents.num_rows,
+                    "pedestrians": sum(sequences[m].pedestrians for m in members),
+                    "frames": sum(sequences[m].frames for m in members),
+                }
+            )
+    pq.write_table(pa.concat_tables(window_parts), out_dir / WINDOWS_FILE)
+    pq.write_table(pa.concat_tables(agent_parts), out_dir / AGENT_WINDOWS_FILE)
+    return {"window_len": window_len, "obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "summary": summary}
+
+
+def _dictionary(values: list[str] | np.ndarray, n: int | None = None) -> pa.Array:
+    array = pa.array(values if n is None else [values] * n, type=pa.string())
+    return array.dictionary_encode().cast(pa.dictionary(pa.int8(), pa.string()))
+
+
+def _assemble(
+    benchmark: str,
+    part: str,
+    members: tuple[tuple[str, str], ...],
+    sequences: dict[tuple[str, str], SequenceWindows],
+) -> tuple[pa.Table, pa.Table]:
+    """Concatenate the member files' windows into one benchmark part with window ids 0..W-1."""
+    seqs = [sequences[m] for m in members]
+    sizes = np.array([seq.first_step.size for seq in seqs])
+    offsets = np.r_[0, np.cumsum(sizes)[:-1]]
+    n_windows, n_agents = int(sizes.sum()), sum(seq.agent_ped.size for seq in seqs)
+    window_len = seqs[0].agent_xy.shape[1]
+    source = np.repeat([m[0] for m in members], sizes)
+    split = np.repeat([m[1] for m in members], sizes)
+    first_step = np.concatenate([seq.first_step for seq in seqs])
+    windows = pa.Table.from_arrays(
+        [
+            _dictionary(benchmark, n_windows),
+            _dictionary(part, n_windows),
+            pa.array(np.arange(n_windows), pa.int64()),
+            _dictionary(source.tolist()),
+            _dictionary(split.tolist()),
+            pa.array(first_step, pa.int64()),
+            pa.array(np.concatenate([seq.t0_step for seq in seqs]), pa.int64()),
+            pa.array(np.concatenate([seq.t0_frame_id for seq in seqs]), pa.int64()),
+            pa.array(np.concatenate([seq.n_agents for seq in seqs]), pa.int32()),
+            pa.array(np.concatenate([seq.n_present for seq in seqs]), pa.int32()),
+        ],
+        schema=WINDOWS_SCHEMA,
+    )
+    xy = np.concatenate([seq.agent_xy.reshape(-1) for seq in seqs])
+    agents = pa.Table.from_arrays(
+        [
+            _dictionary(benchmark, n_agents),
+            _dictionary(part, n_agents),
+            pa.array(np.concatenate([seq.agent_window + off for seq, off in zip(seqs, offsets)]), pa.int64()),
+            pa.array(np.concatenate([seq.agent_ped for seq in seqs]), pa.int64()),
+            pa.FixedSizeListArray.from_arrays(pa.array(xy, pa.float64()), 2 * window_len),
+        ],
+        schema=agent_windows_schema(window_len),
+    )
+    return windows, agents
