@@ -114,6 +114,11 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _remove_empty(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        folder.rmdir()
+
+
 def _hash_files(folder: Path) -> dict[str, dict[str, Any]]:
     files = {}
     for path in sorted(p for p in folder.rglob("*") if p.is_file()):
@@ -235,6 +240,7 @@ class ArtifactStore:
         artifact at the destination is left untouched.
         """
         self.clean_incomplete()
+        created_root = not self.root.exists()
         tmp = self.root / _INCOMPLETE / f"{kind}-{fp[:_FP_DIR_LEN]}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
@@ -256,6 +262,9 @@ class ArtifactStore:
             self._install(tmp, self.path_for(kind, fp))
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+            _remove_empty(tmp.parent)
+            if created_root:
+                _remove_empty(self.root)  # a failed first build leaves no trace at all
         ctx.artifact = Artifact(self.path_for(kind, fp), manifest)
 
     def _install(self, tmp: Path, final: Path) -> None:

@@ -10,6 +10,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn
 
 err_console = Console(stderr=True, highlight=False)
 out_console = Console(highlight=False)
+if not out_console.is_terminal:  # piped or captured: do not squeeze tables into 80 columns
+    out_console.width = 120
 
 
 def log(message: str) -> None:

@@ -1,0 +1,185 @@
+"""The `fftool` command line: one thin command per stage; the science lives in the stage modules.
+
+Every command goes through `_boundary`, the single place where fftool errors become
+`Error: <message>` on stderr with exit code 1 (usage errors exit 2, from Typer's parser). Heavy libraries (pandas,
+pyarrow, torch) are imported inside commands so `fftool --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+
+from fftool.errors import ConfigError, FftoolError
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+app = typer.Typer(
+    name="fftool",
+    help="ForceFormer pedestrian-trajectory prediction, reproducible: one command per pipeline stage.\n\n"
+    "Example: fftool ingest --raw ../shared/data/eth_ucy/raw",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+artifacts_app = typer.Typer(
+    help="Inspect and verify built artifacts.\n\nExample: fftool artifacts list",
+    no_args_is_help=True,
+)
+app.add_typer(artifacts_app, name="artifacts")
+
+RootOption = Annotated[
+    Path | None,
+    typer.Option("--root", help="Artifact root. Default: $FFTOOL_ARTIFACTS or ./artifacts.", show_default=False),
+]
+ConfigOption = Annotated[
+    Path | None,
+    typer.Option("--config", "-c", exists=True, dir_okay=False, help="Pipeline TOML file (e.g. pipelines/quick.toml)."),
+]
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", help="Override a config value: section.key=value (repeatable)."),
+]
+ForceOption = Annotated[bool, typer.Option("--force", help="Rebuild even if an artifact with this fingerprint exists.")]
+
+
+def _boundary(func: F) -> F:
+    """Turn fftool errors (and OS errors on user paths) into `Error: …`, exit 1 (2 for config), no traceback."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        code = 1
+        try:
+            return func(*args, **kwargs)
+        except ConfigError as exc:  # a bad --set or pipeline file is a usage error
+            message, code = str(exc), 2
+        except FftoolError as exc:
+            message = str(exc)
+        except OSError as exc:
+            message = f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": ")
+        except KeyboardInterrupt:
+            message = "interrupted; no partial artifact was kept"
+        _fail(message, code)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _fail(message: str, code: int) -> None:
+    from fftool.ui import err_console
+
+    err_console.print(f"Error: {message}", markup=False, soft_wrap=True, highlight=False)
+    raise typer.Exit(code)
+
+
+def _store(root: Path | None) -> Any:
+    from fftool.store import ArtifactStore, default_root
+
+    return ArtifactStore(root or default_root())
+
+
+@app.command(epilog="Example: fftool ingest --raw ../shared/data/eth_ucy/raw --root artifacts")
+@_boundary
+def ingest(
+    raw: Annotated[
+        Path | None,
+        typer.Option(
+            "--raw",
+            exists=True,
+            file_okay=False,
+            help="Raw Social-GAN root with all_data/, train/, val/. Default: data.raw_dir of the config.",
+        ),
+    ] = None,
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Validate the raw ETH/UCY files and build the tracks and windows artifacts, with a summary table."""
+    from fftool import pipeline
+    from fftool.config import load_config
+    from fftool.reports import windows_summary_table
+    from fftool.ui import out_console
+
+    overrides = list(set_ or []) + ([f"data.raw_dir={str(raw)!r}"] if raw else [])
+    cfg = load_config(config, overrides)
+    built = pipeline.run(cfg, _store(root), ["windows"], force=["tracks", "windows"] if force else [])
+    out_console.print(windows_summary_table(built["windows"]))
+
+
+@app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")
+@_boundary
+def fetch_data(
+    dest: Annotated[Path, typer.Option("--dest", file_okay=False, help="Where to place all_data/, train/, val/.")] = Path(
+        "data/eth_ucy/raw"
+    ),
+    base_url: Annotated[
+        str | None, typer.Option("--base-url", help="Mirror URL of the raw root (default: pinned public source).")
+    ] = None,
+) -> None:
+    """Download the raw ETH/UCY files, check their pinned sha256, and place them where ingest expects."""
+    from fftool.fetch import DEFAULT_BASE_URL, fetch_raw, registry
+    from fftool.ui import log, progress
+
+    with progress() as bar:
+        task = bar.add_task("fetch raw files", total=len(registry()))
+        status = fetch_raw(dest, base_url or DEFAULT_BASE_URL, on_file=lambda rel, _: bar.advance(task))
+    downloaded = sum(1 for s in status.values() if s == "downloaded")
+    log(f"{downloaded} downloaded, {len(status) - downloaded} already present and verified, in {dest}")
+    log(f"next: fftool ingest --raw {dest}")
+
+
+@artifacts_app.command("list", epilog="Example: fftool artifacts list --kind windows")
+@_boundary
+def artifacts_list(
+    kind: Annotated[str | None, typer.Option("--kind", help="Only artifacts of this kind (stage name).")] = None,
+    root: RootOption = None,
+) -> None:
+    """List every complete artifact: id, creation time, size and the artifacts it was built from."""
+    from fftool.reports import artifacts_table
+    from fftool.ui import out_console
+
+    out_console.print(artifacts_table(_store(root).list(kind)))
+
+
+@artifacts_app.command("show", epilog="Example: fftool artifacts show windows/3f9c2a")
+@_boundary
+def artifacts_show(
+    artifact_id: Annotated[str, typer.Argument(metavar="ID", help="kind/fingerprint-prefix, a prefix, or a kind.")],
+    root: RootOption = None,
+) -> None:
+    """Print one artifact's manifest (kind, schema version, parameters, inputs, files, stats)."""
+    from rich.json import JSON
+
+    from fftool.ui import out_console
+
+    artifact = _store(root).resolve(artifact_id)
+    out_console.print(f"[bold]{artifact.id}[/]  {artifact.path}")
+    out_console.print(JSON(artifact.manifest.to_json()))
+
+
+@artifacts_app.command("verify", epilog="Example: fftool artifacts verify            # every artifact")
+@_boundary
+def artifacts_verify(
+    artifact_id: Annotated[str | None, typer.Argument(metavar="[ID]", help="One artifact; default: all.")] = None,
+    root: RootOption = None,
+) -> None:
+    """Re-hash artifact files and report any that changed since they were built (exit 1 if any)."""
+    from fftool.ui import out_console
+
+    store = _store(root)
+    targets = [store.resolve(artifact_id)] if artifact_id else store.list()
+    changed = 0
+    for artifact in targets:
+        problems = store.verify(artifact)
+        changed += bool(problems)
+        status = "[green]ok[/]" if not problems else "[red]CHANGED[/]"
+        out_console.print(f"{status}  {artifact.id}")
+        for problem in problems:
+            out_console.print(f"      {problem}")
+    if changed:
+        raise FftoolError(f"{changed} of {len(targets)} artifact(s) changed since they were built")
+    out_console.print(f"{len(targets)} artifact(s) verified")

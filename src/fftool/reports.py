@@ -1,0 +1,64 @@
+"""Rich tables built from artifact manifests (summaries people would rather look at than read)."""
+
+from __future__ import annotations
+
+from rich import box
+from rich.table import Table
+
+from fftool.store import Artifact
+
+
+def windows_summary_table(windows: Artifact) -> Table:
+    """Per benchmark and part: windows, valid agent-windows, pedestrians and frames."""
+    table = Table(
+        title=f"ETH/UCY leave-one-out windows ({windows.id})",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+    )
+    table.add_column("benchmark", no_wrap=True)
+    table.add_column("part", no_wrap=True)
+    for name in ("windows", "valid agent-windows", "pedestrians", "frames", "candidates"):
+        table.add_column(name, justify="right", no_wrap=True)
+    previous = None
+    for row in windows.manifest.stats["summary"]:
+        if previous is not None and row["benchmark"] != previous:
+            table.add_section()
+        previous = row["benchmark"]
+        table.add_row(
+            row["benchmark"],
+            row["part"],
+            f"{row['windows']:,}",
+            f"{row['agent_windows']:,}",
+            f"{row['pedestrians']:,}",
+            f"{row['frames']:,}",
+            f"{row['candidate_windows']:,}",
+        )
+    table.caption = (
+        "windows: start frames with ≥ 1 pedestrian present at all 20 steps;\n"
+        "candidates: every start frame; pedestrians, frames: in the part's raw files"
+    )
+    table.caption_justify = "left"
+    return table
+
+
+def artifacts_table(artifacts: list[Artifact]) -> Table:
+    table = Table(title="artifacts", title_justify="left")
+    for name in ("id", "schema", "created", "files", "size", "inputs"):
+        table.add_column(name, justify="right" if name in ("files", "size") else "left")
+    for artifact in artifacts:
+        manifest = artifact.manifest
+        size = sum(f["bytes"] for f in manifest.files.values())
+        inputs = ", ".join(
+            f"{name}/{fp[:8]}" for name, fp in manifest.inputs.items() if not name.startswith("raw/")
+        ) or f"{sum(1 for name in manifest.inputs if name.startswith('raw/'))} raw files"
+        table.add_row(
+            artifact.id,
+            f"v{manifest.schema_version}",
+            manifest.created_at,
+            str(len(manifest.files)),
+            f"{size / 1e6:.1f} MB",
+            inputs,
+        )
+    if not artifacts:
+        table.caption = "no artifacts yet: run `fftool ingest`"
+    return table

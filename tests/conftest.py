@@ -1,0 +1,76 @@
+"""Shared fixtures: a tiny synthetic raw tree (all 8 sources × all/train/val) and a store on tmp_path."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fftool.scenes import SOURCES, raw_relpath
+from fftool.store import ArtifactStore
+
+REAL_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_ucy" / "raw"
+
+
+def write_rows(path: Path, rows: list[tuple[float, float, float, float]], sep: str = "\t") -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(sep.join(f"{v}" for v in row) + "\n" for row in rows))
+    return path
+
+
+def walker_rows(n_peds: int, n_frames: int, stride: int = 10, seed: int = 0) -> list[tuple[float, ...]]:
+    """Straight walkers: ped p is present from frame p*stride for n_frames - p frames."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for ped in range(1, n_peds + 1):
+        start = ped - 1
+        velocity = rng.uniform(-1.0, 1.0, size=2)
+        origin = rng.uniform(0.0, 10.0, size=2)
+        for step in range(start, n_frames):
+            x, y = origin + velocity * (step - start) * 0.4
+            rows.append((step * stride, ped, round(float(x), 2), round(float(y), 2)))
+    rows.sort()
+    return rows
+
+
+def make_raw_tree(root: Path, n_peds: int = 3, n_frames: int = 50, split_frame: int = 30) -> Path:
+    """All 24 raw files: each source's all_data, and train/val split in time at `split_frame` steps."""
+    for index, source in enumerate(SOURCES):
+        rows = walker_rows(n_peds, n_frames, seed=index)
+        write_rows(root / raw_relpath(source, "all"), rows)
+        write_rows(root / raw_relpath(source, "train"), [r for r in rows if r[0] < split_frame * 10])
+        write_rows(root / raw_relpath(source, "val"), [r for r in rows if r[0] >= split_frame * 10])
+    return root
+
+
+@pytest.fixture
+def raw_tree(tmp_path: Path) -> Path:
+    return make_raw_tree(tmp_path / "raw")
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> ArtifactStore:
+    return ArtifactStore(tmp_path / "artifacts")
+
+
+@pytest.fixture
+def real_raw() -> Path:
+    """The real ETH/UCY raw files; CI sets FFTOOL_REQUIRE_DATA=1 so their absence fails, not skips."""
+    if not REAL_RAW.is_dir():
+        if os.environ.get("FFTOOL_REQUIRE_DATA"):
+            pytest.fail(f"real data required but not found at {REAL_RAW.resolve()}")
+        pytest.skip(f"real ETH/UCY data not found at {REAL_RAW.resolve()}")
+    return REAL_RAW.resolve()
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under root with its bytes: to prove a failed command changed nothing."""
+    if not root.exists():
+        return {}
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+SnapshotFn = Callable[[Path], dict[str, bytes]]

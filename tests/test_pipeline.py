@@ -1,0 +1,74 @@
+"""The DAG runner: cache skip on the second run, targeted rebuilds when parameters or bytes change."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from fftool import pipeline
+from fftool.config import load_config
+from fftool.store import ArtifactStore
+
+
+@pytest.fixture
+def calls(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Spy on every stage's build function: records the stage names that were really built."""
+    record: list[str] = []
+    spied = {}
+    for name, stage in pipeline.STAGES.items():
+
+        def spy(cfg, inputs, ctx, _build=stage.build, _name=name):
+            record.append(_name)
+            return _build(cfg, inputs, ctx)
+
+        spied[name] = dataclasses.replace(stage, build=spy)
+    monkeypatch.setattr(pipeline, "STAGES", spied)
+    return record
+
+
+def _cfg(raw: Path, *overrides: str):
+    return load_config(None, [f"data.raw_dir={str(raw)!r}", *overrides])
+
+
+def test_second_run_builds_nothing(raw_tree: Path, store: ArtifactStore, calls: list[str]) -> None:
+    first = pipeline.run(_cfg(raw_tree), store, ["windows"])
+    assert calls == ["tracks", "windows"]
+    second = pipeline.run(_cfg(raw_tree), store, ["windows"])
+    assert calls == ["tracks", "windows"]
+    assert {k: a.fingerprint for k, a in first.items()} == {k: a.fingerprint for k, a in second.items()}
+
+
+def test_parameter_change_rebuilds_only_downstream(raw_tree: Path, store: ArtifactStore, calls: list[str]) -> None:
+    pipeline.run(_cfg(raw_tree), store, ["windows"])
+    pipeline.run(_cfg(raw_tree, "windows.window_stride=2"), store, ["windows"])
+    assert calls == ["tracks", "windows", "windows"]
+    assert len(store.list("windows")) == 2 and len(store.list("tracks")) == 1
+
+
+def test_one_changed_input_byte_rebuilds_everything(raw_tree: Path, store: ArtifactStore, calls: list[str]) -> None:
+    before = pipeline.run(_cfg(raw_tree), store, ["windows"])
+    path = raw_tree / "all_data" / "biwi_eth.txt"
+    text = path.read_text()
+    path.write_text(text.replace("\t", " ", 1))  # same numbers, one different byte
+    after = pipeline.run(_cfg(raw_tree), store, ["windows"])
+    assert calls == ["tracks", "windows", "tracks", "windows"]
+    assert before["tracks"].fingerprint != after["tracks"].fingerprint
+    assert before["windows"].fingerprint != after["windows"].fingerprint
+
+
+def test_force_rebuilds_the_named_stage(raw_tree: Path, store: ArtifactStore, calls: list[str]) -> None:
+    pipeline.run(_cfg(raw_tree), store, ["windows"])
+    pipeline.run(_cfg(raw_tree), store, ["windows"], force=["windows"])
+    assert calls == ["tracks", "windows", "windows"]
+
+
+def test_manifest_records_parameters_and_inputs(raw_tree: Path, store: ArtifactStore) -> None:
+    built = pipeline.run(_cfg(raw_tree), store, ["windows"])
+    tracks, windows = built["tracks"].manifest, built["windows"].manifest
+    assert tracks.params == {"frame_stride": 10, "dt_s": 0.4, "duplicates": "warn"}
+    assert len([k for k in tracks.inputs if k.startswith("raw/")]) == 24
+    assert tracks.stats["frame_stride"] == 10 and tracks.stats["dt_s"] == 0.4
+    assert windows.inputs == {"tracks": tracks.fingerprint}
+    assert windows.params == {"obs_len": 8, "pred_len": 12, "window_stride": 1}

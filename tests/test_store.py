@@ -1,0 +1,135 @@
+"""The artifact store: atomic builds, interruption, self-healing, verification, lookup by id."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from fftool.errors import ArtifactMissing, FftoolError, SchemaError
+from fftool.store import MANIFEST, ArtifactStore
+
+FP_A = "a" * 64
+FP_B = "ab" + "c" * 62
+
+
+def _build(store: ArtifactStore, kind: str = "demo", fp: str = FP_A, content: str = "hello", version: int = 1):
+    with store.build(kind, fp, schema_version=version, params={"p": 1}, inputs={"up": "0" * 64}) as ctx:
+        (ctx.dir / "data.txt").write_text(content)
+        ctx.stats = {"rows": 1}
+    return ctx.artifact
+
+
+def test_build_writes_manifest_with_hashes(store: ArtifactStore) -> None:
+    artifact = _build(store)
+    manifest = artifact.manifest
+    assert artifact.path == store.root / "demo" / FP_A[:16]
+    assert manifest.kind == "demo" and manifest.schema_version == 1 and manifest.fingerprint == FP_A
+    assert manifest.files["data.txt"]["bytes"] == 5
+    assert manifest.params == {"p": 1} and manifest.stats == {"rows": 1}
+    assert manifest.created_at and manifest.fftool_version
+    assert store.lookup("demo", FP_A) == artifact
+    assert store.verify(artifact) == []
+
+
+def test_failed_build_leaves_nothing(tmp_path: Path) -> None:
+    store = ArtifactStore(tmp_path / "fresh")
+    with pytest.raises(RuntimeError), store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:
+        (ctx.dir / "half.txt").write_text("half")
+        raise RuntimeError("boom")
+    assert not (tmp_path / "fresh").exists()
+
+
+def test_failed_rebuild_keeps_the_old_artifact(store: ArtifactStore) -> None:
+    _build(store, content="old")
+    with pytest.raises(KeyboardInterrupt), store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:
+        (ctx.dir / "data.txt").write_text("new, half written")
+        raise KeyboardInterrupt
+    artifact = store.lookup("demo", FP_A)
+    assert (artifact.path / "data.txt").read_text() == "old"
+    assert store.verify(artifact) == []
+    assert not (store.root / ".incomplete").exists()
+
+
+def test_forced_rebuild_replaces_atomically(store: ArtifactStore) -> None:
+    _build(store, content="old")
+    artifact = _build(store, content="brand new")
+    assert (artifact.path / "data.txt").read_text() == "brand new"
+    assert [a.id for a in store.list()] == [artifact.id]
+
+
+KILLED_BUILD = textwrap.dedent(
+    """
+    import sys, time
+    from pathlib import Path
+    from fftool.store import ArtifactStore
+    store = ArtifactStore(sys.argv[1])
+    with store.build("demo", "a" * 64, schema_version=1, params={}, inputs={}) as ctx:
+        (ctx.dir / "data.txt").write_text("partial")
+        Path(sys.argv[2]).write_text("started")
+        time.sleep(60)
+    """
+)
+
+
+def test_killed_build_leaves_no_artifact_and_is_cleaned_next_time(store: ArtifactStore, tmp_path: Path) -> None:
+    marker = tmp_path / "started"
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_BUILD, str(store.root), str(marker)])
+    deadline = time.monotonic() + 30
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert marker.exists(), "the build subprocess never started"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert store.lookup("demo", FP_A) is None and store.list() == []
+    assert list((store.root / ".incomplete").iterdir())  # the dead process's folder is still there
+    artifact = _build(store)  # the next build removes it
+    assert store.list() == [artifact]
+    assert not (store.root / ".incomplete").exists()
+
+
+def test_corrupt_manifest_is_not_an_artifact_and_heals(store: ArtifactStore) -> None:
+    artifact = _build(store)
+    (artifact.path / MANIFEST).write_text("{not json")
+    assert store.list() == []
+    assert store.lookup("demo", FP_A) is None
+    assert not artifact.path.exists()
+
+
+def test_verify_reports_changed_missing_and_extra_files(store: ArtifactStore) -> None:
+    artifact = _build(store)
+    (artifact.path / "data.txt").write_text("tampered")
+    (artifact.path / "extra.bin").write_bytes(b"x")
+    problems = store.verify(artifact)
+    assert problems[0].startswith("data.txt: content changed")
+    assert problems[1] == "extra.bin: not listed in the manifest"
+    (artifact.path / "data.txt").unlink()
+    assert store.verify(artifact)[0] == "data.txt: missing"
+
+
+def test_resolve_by_prefix_kind_and_ambiguity(store: ArtifactStore) -> None:
+    a = _build(store, fp=FP_A)
+    b = _build(store, fp=FP_B)
+    other = _build(store, kind="other", fp="f" * 64)
+    assert store.resolve("demo/aaaa") == a
+    assert store.resolve("abc") == b
+    assert store.resolve("other") == other
+    with pytest.raises(FftoolError, match="ambiguous"):
+        store.resolve("demo/a")
+    with pytest.raises(ArtifactMissing, match="no artifact matches 'demo/9'"):
+        store.resolve("demo/9")
+
+
+def test_require_names_the_command_and_checks_the_schema(store: ArtifactStore) -> None:
+    with pytest.raises(ArtifactMissing, match=r"no 'demo' artifact .* run `fftool ingest` first"):
+        store.require("demo", FP_A, 1, "fftool ingest")
+    _build(store, version=1)
+    with pytest.raises(SchemaError, match=r"schema version 1, this fftool reads version 2; rebuild it with"):
+        store.require("demo", FP_A, 2, "fftool ingest")
+    assert store.require("demo", FP_A, 1, "fftool ingest").kind == "demo"
