@@ -136,6 +136,7 @@ def test_top_level_help_does_not_import_torch_or_pyarrow() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
-    assert "Example: fftool ingest" in subprocess.run(
-        [sys.executable, "-m", "fftool", "--help"], capture_output=True, text=True, check=True
-    ).stdout
+    assert (
+        "Example: fftool ingest"
+        in subprocess.run([sys.executable, "-m", "fftool", "--help"], capture_output=True, text=True, check=True).stdout
+    )

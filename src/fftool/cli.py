@@ -113,9 +113,9 @@ def ingest(
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")
 @_boundary
 def fetch_data(
-    dest: Annotated[Path, typer.Option("--dest", file_okay=False, help="Where to place all_data/, train/, val/.")] = Path(
-        "data/eth_ucy/raw"
-    ),
+    dest: Annotated[
+        Path, typer.Option("--dest", file_okay=False, help="Where to place all_data/, train/, val/.")
+    ] = Path("data/eth_ucy/raw"),
     base_url: Annotated[
         str | None, typer.Option("--base-url", help="Mirror URL of the raw root (default: pinned public source).")
     ] = None,

@@ -71,7 +71,7 @@ def fetch_raw(
                         f"{base_url + rel}: checksum mismatch (expected sha256 {digest[:16]}…); "
                         "nothing was kept. The server may serve a different version of the file."
                     ) from exc
-                except Exception as exc:  # noqa: BLE001 - network errors come in many types
+                except Exception as exc:
                     raise FetchError(f"{base_url + rel}: download failed ({exc}); nothing was kept") from exc
                 status[rel] = "downloaded"
             if on_file:

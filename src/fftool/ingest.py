@@ -52,9 +52,7 @@ def _check_train_val(tables: Mapping[tuple[str, str], RawTable]) -> list[str]:
     for source in SOURCES:
         whole, train, val = (tables[(source, split)] for split in SPLITS)
         if len(train) + len(val) != len(whole):
-            warnings.append(
-                f"{source}: train ({len(train)} rows) + val ({len(val)} rows) != all ({len(whole)} rows)"
-            )
+            warnings.append(f"{source}: train ({len(train)} rows) + val ({len(val)} rows) != all ({len(whole)} rows)")
         elif train.frame_id.max() >= val.frame_id.min():
             warnings.append(f"{source}: train and val overlap in time")
     return warnings
@@ -118,4 +116,3 @@ def build(
         "files": files,
         "warnings": warnings,
     }
-

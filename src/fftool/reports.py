@@ -48,9 +48,10 @@ def artifacts_table(artifacts: list[Artifact]) -> Table:
     for artifact in artifacts:
         manifest = artifact.manifest
         size = sum(f["bytes"] for f in manifest.files.values())
-        inputs = ", ".join(
-            f"{name}/{fp[:8]}" for name, fp in manifest.inputs.items() if not name.startswith("raw/")
-        ) or f"{sum(1 for name in manifest.inputs if name.startswith('raw/'))} raw files"
+        inputs = (
+            ", ".join(f"{name}/{fp[:8]}" for name, fp in manifest.inputs.items() if not name.startswith("raw/"))
+            or f"{sum(1 for name in manifest.inputs if name.startswith('raw/'))} raw files"
+        )
         table.add_row(
             artifact.id,
             f"v{manifest.schema_version}",

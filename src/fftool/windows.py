@@ -129,13 +129,17 @@ def build(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
             cfg.window_stride,
         )
 
-    window_parts, agent_parts, summary = [], [], []
-    for benchmark in BENCHMARKS:
-        for part in PARTS:
+    summary = []
+    # Stream one benchmark part at a time: the agent-window positions are the bulk of the data.
+    with (
+        pq.ParquetWriter(out_dir / WINDOWS_FILE, WINDOWS_SCHEMA) as window_writer,
+        pq.ParquetWriter(out_dir / AGENT_WINDOWS_FILE, agent_windows_schema(window_len)) as agent_writer,
+    ):
+        for benchmark, part in ((b, p) for b in BENCHMARKS for p in PARTS):
             members = LEAVE_ONE_OUT[benchmark][part]
             windows, agents = _assemble(benchmark, part, members, sequences)
-            window_parts.append(windows)
-            agent_parts.append(agents)
+            window_writer.write_table(windows)
+            agent_writer.write_table(agents)
             summary.append(
                 {
                     "benchmark": benchmark,
@@ -148,14 +152,18 @@ def build(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
                     "frames": sum(sequences[m].frames for m in members),
                 }
             )
-    pq.write_table(pa.concat_tables(window_parts), out_dir / WINDOWS_FILE)
-    pq.write_table(pa.concat_tables(agent_parts), out_dir / AGENT_WINDOWS_FILE)
     return {"window_len": window_len, "obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "summary": summary}
 
 
-def _dictionary(values: list[str] | np.ndarray, n: int | None = None) -> pa.Array:
-    array = pa.array(values if n is None else [values] * n, type=pa.string())
-    return array.dictionary_encode().cast(pa.dictionary(pa.int8(), pa.string()))
+def _constant(value: str, n: int) -> pa.DictionaryArray:
+    """A dictionary column holding one string n times."""
+    return pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([value]))
+
+
+def _labels(values: list[str], counts: np.ndarray) -> pa.DictionaryArray:
+    """A dictionary column holding values[i] counts[i] times, in order."""
+    distinct, index = np.unique(values, return_inverse=True)
+    return pa.DictionaryArray.from_arrays(pa.array(np.repeat(index.astype(np.int8), counts)), pa.array(distinct))
 
 
 def _assemble(
@@ -170,16 +178,14 @@ def _assemble(
     offsets = np.r_[0, np.cumsum(sizes)[:-1]]
     n_windows, n_agents = int(sizes.sum()), sum(seq.agent_ped.size for seq in seqs)
     window_len = seqs[0].agent_xy.shape[1]
-    source = np.repeat([m[0] for m in members], sizes)
-    split = np.repeat([m[1] for m in members], sizes)
     first_step = np.concatenate([seq.first_step for seq in seqs])
     windows = pa.Table.from_arrays(
         [
-            _dictionary(benchmark, n_windows),
-            _dictionary(part, n_windows),
+            _constant(benchmark, n_windows),
+            _constant(part, n_windows),
             pa.array(np.arange(n_windows), pa.int64()),
-            _dictionary(source.tolist()),
-            _dictionary(split.tolist()),
+            _labels([source for source, _ in members], sizes),
+            _labels([split for _, split in members], sizes),
             pa.array(first_step, pa.int64()),
             pa.array(np.concatenate([seq.t0_step for seq in seqs]), pa.int64()),
             pa.array(np.concatenate([seq.t0_frame_id for seq in seqs]), pa.int64()),
@@ -191,8 +197,8 @@ def _assemble(
     xy = np.concatenate([seq.agent_xy.reshape(-1) for seq in seqs])
     agents = pa.Table.from_arrays(
         [
-            _dictionary(benchmark, n_agents),
-            _dictionary(part, n_agents),
+            _constant(benchmark, n_agents),
+            _constant(part, n_agents),
             pa.array(np.concatenate([seq.agent_window + off for seq, off in zip(seqs, offsets)]), pa.int64()),
             pa.array(np.concatenate([seq.agent_ped for seq in seqs]), pa.int64()),
             pa.FixedSizeListArray.from_arrays(pa.array(xy, pa.float64()), 2 * window_len),

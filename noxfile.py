@@ -1,0 +1,52 @@
+"""Sessions: main (the README's end-to-end job), tests, lint, bench. Run `python3 -m nox -l` to list.
+
+Every session installs fftool with `-c constraints.txt`, so the versions are the tested ones.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import nox
+
+nox.options.sessions = ["tests"]
+nox.options.reuse_existing_virtualenvs = True
+
+SHARED_RAW = Path("../shared/data/eth_ucy/raw")
+CONSTRAINTS = ("-c", "constraints.txt")
+
+
+@nox.session
+def main(session: nox.Session) -> None:
+    """The end-to-end job on the real data: fetch it if it is not beside the checkout, then ingest."""
+    session.install(*CONSTRAINTS, "-e", ".")
+    raw = SHARED_RAW
+    if not raw.is_dir():
+        raw = Path("data/eth_ucy/raw")
+        session.run("fftool", "fetch-data", "--dest", str(raw))
+    session.run("fftool", "ingest", "--raw", str(raw), *session.posargs)
+
+
+@nox.session
+def tests(session: nox.Session) -> None:
+    """The test suite (CI runs this). With CI set, missing real data fails instead of skipping."""
+    session.install(*CONSTRAINTS, "-e", ".[test]")
+    env = {"FFTOOL_REQUIRE_DATA": "1"} if os.environ.get("CI") else {}
+    session.run("pytest", *session.posargs, env=env)
+
+
+@nox.session
+def lint(session: nox.Session) -> None:
+    """ruff (lint + format check) and the generated CLI reference being current."""
+    session.install(*CONSTRAINTS, "-e", ".", "ruff")
+    session.run("ruff", "check", "src", "tests", "tools", "benchmarks", "noxfile.py")
+    session.run("ruff", "format", "--check", "src", "tests", "tools", "benchmarks", "noxfile.py")
+    session.run("python", "tools/gen_cli_docs.py", "--check")
+
+
+@nox.session
+def bench(session: nox.Session) -> None:
+    """Benchmarks on the real data: time, peak memory and ratios against plain references."""
+    session.install(*CONSTRAINTS, "-e", ".")
+    session.run("python", "benchmarks/bench_ingest.py", *session.posargs)
