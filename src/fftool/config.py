@@ -22,6 +22,7 @@ else:  # pragma: no cover - exercised on 3.10 only
     import tomli as tomllib
 
 DEFAULT_RAW_DIR = "../shared/data/eth_ucy/raw"
+DEFAULT_SCENES_DIR = "../shared/data/eth_ucy/scenes"
 
 
 class _Section(BaseModel):
@@ -32,6 +33,8 @@ class DataConfig(_Section):
     """Where raw inputs live. Paths are not fingerprinted: raw files enter by content hash."""
 
     raw_dir: str = DEFAULT_RAW_DIR
+    # Scene images and world->pixel homographies, one folder per benchmark scene (for plots and maps).
+    scenes_dir: str = DEFAULT_SCENES_DIR
 
 
 class IngestConfig(_Section):
@@ -55,12 +58,47 @@ class WindowsConfig(_Section):
     window_stride: int = Field(1, gt=0)
 
 
+class ForcesConfig(_Section):
+    """Social forces (Helbing & Molnár 1995, ForceFormer §III-B): every constant, with its default.
+
+    The same object parameterises the `forces` stage and the model's decoder, so training and test-time
+    features follow one definition. docs/forces.md explains each choice.
+    """
+
+    # Driving force F_dr = (v0 e - v) / tau.
+    tau_s: float = Field(0.5, gt=0)  # relaxation time (Helbing & Molnár; socialforce, pysocialforce)
+    # Desired speed v0: the pedestrian's mean observed speed (default), its current speed at each step
+    # (socialforce's choice), or one constant for everyone.
+    desired_speed: Literal["mean_observed", "current", "constant"] = "mean_observed"
+    desired_speed_mps: float = Field(1.3, ge=0)  # used only when desired_speed = "constant"
+    # Below this distance to the goal the desired direction is undefined and both forces are zero.
+    goal_min_distance_m: float = Field(1e-3, gt=0)
+    # Repulsive potential V(b) = V0 exp(-b / sigma) on the elliptical b.
+    v0_m2_s2: float = Field(2.1, ge=0)
+    sigma_m: float = Field(0.3, gt=0)
+    ellipse_step_s: float = Field(0.4, ge=0)  # Δt in b: how far ahead beta's next step is taken
+    # Field of view: weight 1 inside the cone of opening 2ε, c outside.
+    fov_deg: float = Field(200.0, gt=0, le=360)  # 2ε (paper)
+    fov_out_of_view: float = Field(0.5, ge=0, le=1)  # c (paper)
+    # "force": Helbing's w(e_α, -f_αβ); "position": socialforce 0.2's w(e_α, r_β - r_α).
+    fov_reading: Literal["force", "position"] = "force"
+    # Groups: DBSCAN per observed step on everyone present; pairs in one cluster at more than
+    # group_min_steps observed steps are a group and do not repel each other at any step.
+    dbscan_eps_m: float = Field(1.0, gt=0)
+    dbscan_min_samples: int = Field(2, ge=1)
+    group_min_steps: int = Field(4, ge=0)  # σ (paper): "more than" 4 of the 8 observed steps
+    # Who repels: the other valid agents of the window (AgentFormer's scene, default) or everyone
+    # present at that step, valid or not.
+    neighbours: Literal["valid", "present"] = "valid"
+
+
 class PipelineConfig(_Section):
     """The whole pipeline's configuration, as resolved from defaults, a file and overrides."""
 
     data: DataConfig = DataConfig()
     ingest: IngestConfig = IngestConfig()
     windows: WindowsConfig = WindowsConfig()
+    forces: ForcesConfig = ForcesConfig()
 
 
 def _parse_value(text: str) -> Any:
