@@ -66,6 +66,7 @@ def test_head_on_matches_the_hand_computation() -> None:
     _, f_re = _total(positions, velocities, goals)
     b, value, expected = _hand_pair_force(positions[0], positions[1], velocities[1], goals[1])
     assert b == pytest.approx(1.7888543819998317)  # sqrt(3.6^2 - 0.4^2) / 2
+    assert value == pytest.approx(2.1 * math.exp(-b / 0.3))
     np.testing.assert_allclose(f_re[0].numpy(), expected, rtol=1e-12)
     assert f_re[0, 0] < 0 and abs(f_re[0, 1]) < 1e-15  # pushed straight back, away from beta
     np.testing.assert_allclose(f_re[1].numpy(), -f_re[0].numpy(), rtol=1e-12)  # mirror image
@@ -233,6 +234,8 @@ def test_the_two_fov_readings_differ_somewhere() -> None:
         state = _random_states(seed, n=12)
         e, _ = desired_direction(state[:, :2], state[:, 4:6], 1e-3)
         r_ab = state[:, None, :2] - state[None, :, :2]
-        f = pair_repulsion(r_ab, torch.linalg.vector_norm(state[:, 2:4], dim=-1), e, v0_m2_s2=2.1, sigma_m=0.3, step_s=0.4)
+        f = pair_repulsion(
+            r_ab, torch.linalg.vector_norm(state[:, 2:4], dim=-1), e, v0_m2_s2=2.1, sigma_m=0.3, step_s=0.4
+        )
         differs += int((fov_weight(e, -f, 200.0, 0.5) != fov_weight(e, -r_ab, 200.0, 0.5)).sum())
     assert differs > 0

@@ -110,6 +110,71 @@ def ingest(
     out_console.print(windows_summary_table(built["windows"]))
 
 
+def _check_device(value: str) -> str:
+    if value not in ("auto", "cpu", "cuda"):
+        raise typer.BadParameter(f"{value!r} is not one of auto, cpu, cuda")
+    return value
+
+
+DeviceOption = Annotated[
+    str,
+    typer.Option("--device", help="Torch device: auto (CUDA when available), cpu or cuda.", callback=_check_device),
+]
+
+
+@app.command(
+    epilog="Examples: fftool forces    |    fftool forces --explain zara1 3900 --out docs/img/forces_zara1.png"
+)
+@_boundary
+def forces(
+    explain: Annotated[
+        tuple[str, int] | None,
+        typer.Option(
+            "--explain",
+            metavar="SCENE FRAME",
+            help="Also draw the test window of SCENE (eth, hotel, univ, zara1, zara2) whose last observed "
+            "frame id is FRAME, with its forces, over the scene image.",
+        ),
+    ] = None,
+    source: Annotated[
+        str | None, typer.Option("--source", help="With --explain on univ: students001 or students003.")
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="PNG path for --explain. Default: SCENE_FRAME_forces.png.")
+    ] = None,
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Compute driving and repulsive social forces for every valid agent-window, with a summary table."""
+    from fftool import pipeline
+    from fftool.config import load_config
+    from fftool.reports import forces_summary_table
+    from fftool.ui import log, out_console
+
+    cfg = load_config(config, list(set_ or []))
+    runtime = pipeline.Runtime(device=device)
+    built = pipeline.run(cfg, _store(root), ["forces"], force=["forces"] if force else [], runtime=runtime)
+    out_console.print(forces_summary_table(built["forces"]))
+    if explain:
+        from fftool.explain import explain_window
+
+        scene, frame = explain
+        png = explain_window(
+            scene=scene,
+            frame_id=frame,
+            out=out or Path(f"{scene}_{frame}_forces.png"),
+            windows=built["windows"],
+            forces=built["forces"],
+            tracks=built["tracks"],
+            scenes_dir=Path(cfg.data.scenes_dir),
+            source=source,
+        )
+        log(f"wrote {png}")
+
+
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")
 @_boundary
 def fetch_data(

@@ -1,6 +1,7 @@
 """The stage DAG: fingerprints, skip-if-built, atomic builds, in dependency order.
 
-    raw ETH/UCY txt ──▶ tracks ──▶ windows
+    raw ETH/UCY txt ──▶ tracks ──▶ windows ──▶ forces
+                          └──────────────────────▲
 
 Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
 fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
@@ -17,14 +18,31 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from fftool import ingest, windows
+from fftool import forces, ingest, windows
 from fftool.config import PipelineConfig
 from fftool.errors import FftoolError
 from fftool.hashing import fingerprint
 from fftool.store import Artifact, ArtifactStore, BuildContext, check_schema
 from fftool.ui import log, progress, warn
 
-Builder = Callable[[PipelineConfig, Mapping[str, Artifact], BuildContext], dict[str, Any]]
+
+@dataclass(frozen=True)
+class Runtime:
+    """How to run, not what to compute: never part of a fingerprint."""
+
+    device: str = "auto"  # auto | cpu | cuda
+
+    def torch_device(self) -> Any:
+        import torch
+
+        if self.device == "auto":
+            return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise FftoolError("--device cuda was asked for, but torch sees no CUDA device; use --device auto or cpu")
+        return torch.device(self.device)
+
+
+Builder = Callable[[PipelineConfig, Mapping[str, Artifact], BuildContext, Runtime], dict[str, Any]]
 
 
 @dataclass(frozen=True)
@@ -40,7 +58,9 @@ class Stage:
     external_inputs: Callable[[PipelineConfig], dict[str, str]] = lambda cfg: {}
 
 
-def _build_tracks(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext) -> dict[str, Any]:
+def _build_tracks(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+) -> dict[str, Any]:
     raw_dir = Path(cfg.data.raw_dir)
     with progress() as bar:
         task = bar.add_task("ingest raw files", total=24)
@@ -50,8 +70,27 @@ def _build_tracks(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: Buil
     return stats
 
 
-def _build_windows(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext) -> dict[str, Any]:
+def _build_windows(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+) -> dict[str, Any]:
     return windows.build(cfg.windows, inputs["tracks"], ctx.dir)
+
+
+def _build_forces(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+) -> dict[str, Any]:
+    files = {source for row in inputs["windows"].manifest.stats["summary"] for source in row["sources"]}
+    with progress() as bar:
+        task = bar.add_task("social forces", total=len(files))
+        stats = forces.build(
+            cfg.forces,
+            inputs["tracks"],
+            inputs["windows"],
+            ctx.dir,
+            device=runtime.torch_device(),
+            on_sequence=lambda name, _: bar.update(task, advance=1, description=f"social forces: {name}"),
+        )
+    return stats
 
 
 STAGES: dict[str, Stage] = {
@@ -67,6 +106,7 @@ STAGES: dict[str, Stage] = {
             lambda cfg: ingest.raw_input_hashes(Path(cfg.data.raw_dir)),
         ),
         Stage(windows.NAME, windows.VERSION, windows.INPUTS, "fftool ingest", lambda cfg: cfg.windows, _build_windows),
+        Stage(forces.NAME, forces.VERSION, forces.INPUTS, "fftool forces", lambda cfg: cfg.forces, _build_forces),
     )
 }
 
@@ -110,7 +150,11 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str]) -> list[Resolved]:
 
 
 def run(
-    cfg: PipelineConfig, store: ArtifactStore, targets: Iterable[str], force: Iterable[str] = ()
+    cfg: PipelineConfig,
+    store: ArtifactStore,
+    targets: Iterable[str],
+    force: Iterable[str] = (),
+    runtime: Runtime | None = None,
 ) -> dict[str, Artifact]:
     """Build what is missing for `targets` (and rebuild the stages named in `force`)."""
     forced = set(force)
@@ -125,7 +169,7 @@ def run(
             continue
         log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
         with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
-            ctx.stats = stage.build(cfg, {name: built[name] for name in stage.inputs}, ctx)
+            ctx.stats = stage.build(cfg, {name: built[name] for name in stage.inputs}, ctx, runtime or Runtime())
         assert ctx.artifact is not None
         log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
         built[stage.name] = ctx.artifact

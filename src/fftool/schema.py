@@ -61,3 +61,18 @@ def agent_windows_schema(window_len: int = WINDOW_LEN) -> pa.Schema:
             pa.field("xy", pa.list_(pa.float64(), 2 * window_len), nullable=False),
         ]
     )
+
+
+# --- forces artifact ------------------------------------------------------------------------------
+# Row i of every array below belongs to row i of index.parquet, which repeats the (benchmark, part,
+# window_id, ped_id) keys of agent_windows.parquet in the same order. Arrays are .npy files, so
+# training can memory-map them (np.load(path, mmap_mode="r")).
+FORCES_INDEX_FILE: Final = "index.parquet"
+FORCES_ARRAYS: Final = {
+    "f_dr": "f_dr.npy",  # (M, L, 2) float32 driving force, N/kg = m/s^2
+    "f_re": "f_re.npy",  # (M, L, 2) float32 repulsive force (field-of-view weighted, groups removed)
+    "velocity": "velocity.npy",  # (M, L, 2) float32 m/s, causal finite differences
+    "goal": "goal.npy",  # (M, 2) float32 the goal used: the ground-truth position at the last step
+    "speed0": "speed0.npy",  # (M, L) float32 desired speed v0
+    "group_id": "group_id.npy",  # (M,) int32 window-local group (smallest member slot), -1 alone
+}

@@ -9,6 +9,7 @@ nothing. No Python loop runs over agents or steps. The equations are written out
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -171,7 +172,7 @@ def social_forces(
         heading: (B, N) bool; agents whose goal is unknown (neighbours that are not valid) use their
             velocity direction as e for the ellipse and feel no force. Default: every goal is known.
     """
-    B, N, T, _ = position.shape
+    N = position.shape[1]  # position: (B, N, T, 2)
     direction, defined = desired_direction(position, goal[:, :, None, :], cfg.goal_min_distance_m)
     if heading is not None:
         direction = torch.where(heading[:, :, None, None], _unit(velocity), direction)
@@ -196,3 +197,41 @@ def social_forces(
     f_re = torch.where(interacts[..., None], weight[..., None] * f_ab, torch.zeros_like(f_ab)).sum(dim=-2)
     f_re = torch.where((defined & present)[..., None], f_re.transpose(1, 2), torch.zeros_like(f_dr))
     return f_dr, f_re
+
+
+@dataclass(frozen=True)
+class WindowForces:
+    """Everything the force features of a batch of windows are made of."""
+
+    f_dr: Tensor  # (B, N, T, 2) driving force
+    f_re: Tensor  # (B, N, T, 2) repulsive force
+    velocity: Tensor  # (B, N, T, 2) finite-difference velocity
+    speed0: Tensor  # (B, N, T) desired speed
+    groups: Tensor  # (B, N, N) bool: pairs that do not repel
+
+
+def window_forces(
+    position: Tensor,
+    present: Tensor,
+    goal: Tensor,
+    labels: Tensor,
+    cfg: ForcesConfig,
+    *,
+    dt_s: float,
+    obs_len: int,
+    heading: Tensor | None = None,
+) -> WindowForces:
+    """The forces stage's whole computation for a padded batch of windows.
+
+    Args:
+        position: (B, N, T, 2) metres. present: (B, N, T) bool. goal: (B, N, 2).
+        labels: (B, N, obs_len) DBSCAN cluster labels at the observed steps, -1 for noise or absent.
+        cfg: the force constants. dt_s: seconds per step. obs_len: observed steps.
+        heading: (B, N) bool, agents without a known goal (see `social_forces`).
+    """
+    velocity = finite_difference_velocity(position, present, dt_s, obs_len)
+    speed0 = desired_speed(velocity, present, obs_len, cfg)
+    groups = same_group(labels, cfg.group_min_steps)
+    groups = groups & ~torch.eye(groups.shape[-1], dtype=torch.bool, device=groups.device)
+    f_dr, f_re = social_forces(position, present, goal, velocity, speed0, groups, cfg, heading=heading)
+    return WindowForces(f_dr, f_re, velocity, speed0, groups)

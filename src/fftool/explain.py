@@ -1,0 +1,137 @@
+"""Draw one window's pedestrians with their driving and repulsive forces over the scene image.
+
+Run: `fftool forces --explain zara1 3900` (scene = a benchmark's test recording, frame = the raw
+frame id of the last observed step). People understand forces by looking at them.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from fftool.errors import FftoolError
+from fftool.scenes import BENCHMARK_TEST_SOURCES
+from fftool.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, TRACKS_FILE, WINDOWS_FILE
+from fftool.store import Artifact
+
+
+def load_homography(scene_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(image (H, W, 3), world->pixel matrix (3, 3)) of a scene folder, or None without geometry."""
+    image_path, matrix_path = scene_dir / "reference.png", scene_dir / "world_to_pixel.txt"
+    if not (image_path.is_file() and matrix_path.is_file()):
+        return None
+    import matplotlib.image
+
+    return matplotlib.image.imread(image_path), np.loadtxt(matrix_path).reshape(3, 3)
+
+
+def world_to_pixel(matrix: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Apply a 3×3 homography to (..., 2) world points: p = M [x, y, 1], (u, v) = p[:2] / p[2]."""
+    homogeneous = np.concatenate([xy, np.ones((*xy.shape[:-1], 1))], axis=-1) @ matrix.T
+    return homogeneous[..., :2] / homogeneous[..., 2:3]
+
+
+def _find_window(windows: Artifact, scene: str, frame_id: int, source: str | None) -> tuple[int, str, int]:
+    if scene not in BENCHMARK_TEST_SOURCES:
+        raise FftoolError(f"unknown scene {scene!r}; scenes: {', '.join(BENCHMARK_TEST_SOURCES)}")
+    table = pq.read_table(
+        windows.file(WINDOWS_FILE), filters=[("benchmark", "=", scene), ("part", "=", "test")]
+    ).to_pandas()
+    hits = table[(table["t0_frame_id"] == frame_id) & ((table["source"] == source) if source else True)]
+    if hits.empty:
+        near = table["t0_frame_id"].to_numpy()
+        closest = near[np.argsort(np.abs(near - frame_id))[:5]]
+        raise FftoolError(
+            f"no {scene} test window whose last observed frame is {frame_id}"
+            + (f" in {source}" if source else "")
+            + f"; nearest frames with valid pedestrians: {', '.join(map(str, sorted(set(closest.tolist()))))}"
+        )
+    if len(hits) > 1:
+        raise FftoolError(
+            f"frame {frame_id} exists in several {scene} recordings ({', '.join(hits['source'].astype(str))}); "
+            "choose one with --source"
+        )
+    row = hits.iloc[0]
+    return int(row["window_id"]), str(row["source"]), int(row["t0_step"])
+
+
+def explain_window(
+    *,
+    scene: str,
+    frame_id: int,
+    out: Path,
+    windows: Artifact,
+    forces: Artifact,
+    tracks: Artifact,
+    scenes_dir: Path,
+    source: str | None = None,
+    dr_scale_s2: float = 2.0,
+    re_scale_s2: float = 10.0,
+) -> Path:
+    """Render the window ending at `frame_id` of `scene`'s test recording to a PNG; return its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    window_id, source, t0_step = _find_window(windows, scene, frame_id, source)
+    obs_len = int(windows.manifest.stats["obs_len"])
+    agents = pq.read_table(windows.file(AGENT_WINDOWS_FILE), columns=["benchmark", "part", "window_id", "ped_id", "xy"])
+    keys = agents.select(["benchmark", "part", "window_id"]).to_pandas()
+    rows = np.flatnonzero(
+        (keys["benchmark"] == scene).to_numpy()
+        & (keys["part"] == "test").to_numpy()
+        & (keys["window_id"] == window_id).to_numpy()
+    )
+    xy = np.stack(agents.column("xy").take(rows).to_numpy(zero_copy_only=False)).reshape(len(rows), -1, 2)
+    ped_ids = agents.column("ped_id").take(rows).to_numpy()
+    arrays = {name: np.load(forces.file(file), mmap_mode="r") for name, file in FORCES_ARRAYS.items()}
+    f_dr, f_re = arrays["f_dr"][rows, obs_len - 1], arrays["f_re"][rows, obs_len - 1]
+    group = arrays["group_id"][rows]
+    bystanders = pq.read_table(
+        tracks.file(TRACKS_FILE), filters=[("source", "=", source), ("split", "=", "all"), ("step", "=", t0_step)]
+    ).to_pandas()
+    bystanders = bystanders[~bystanders["ped_id"].isin(ped_ids)][["x", "y"]].to_numpy()
+
+    now = xy[:, obs_len - 1]
+    geometry = load_homography(scenes_dir / scene)
+    project = (lambda p: world_to_pixel(geometry[1], p)) if geometry else (lambda p: p)
+    fig, ax = plt.subplots(figsize=(10, 8), dpi=110)
+    if geometry:
+        ax.imshow(geometry[0])
+    for path in xy[:, :obs_len]:
+        ax.plot(*project(path).T, color="white" if geometry else "grey", lw=1.2, alpha=0.9)
+    if len(bystanders):
+        ax.scatter(*project(bystanders).T, s=18, c="lightgrey", edgecolors="black", lw=0.5, label="others present")
+    ax.scatter(*project(now).T, s=36, c="yellow", edgecolors="black", lw=0.7, zorder=3, label="valid pedestrians")
+    for a, b in itertools.combinations(range(len(rows)), 2):
+        if group[a] >= 0 and group[a] == group[b]:
+            ax.plot(*project(now[[a, b]]).T, ls="--", color="cyan", lw=1.5, zorder=2)
+    for force, scale, color, name in ((f_dr, dr_scale_s2, "lime", "F_dr"), (f_re, re_scale_s2, "red", "F_re")):
+        start, end = project(now), project(now + scale * force)
+        for (x0, y0), (x1, y1) in zip(start, end):
+            ax.annotate("", xy=(x1, y1), xytext=(x0, y0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
+        ax.plot([], [], color=color, lw=2, label=f"{name} × {scale:g} s² (m)")
+    ax.plot([], [], ls="--", color="cyan", label="group (no mutual repulsion)")
+    ax.set_title(
+        f"{scene} ({source}), frame {frame_id}: forces at the last observed step"
+        + ("\n(background: the scene's reference image, not this frame)" if geometry else ""),
+        fontsize=10,
+    )
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
+    if geometry:
+        ax.set_axis_off()
+    else:
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(f".{out.name}.partial")
+    fig.savefig(partial, format="png", bbox_inches="tight")
+    plt.close(fig)
+    os.replace(partial, out)
+    return out

@@ -1,0 +1,279 @@
+"""Social-force features for every valid agent-window of every benchmark part.
+
+Reads: tracks (all positions, for DBSCAN groups and neighbours) and windows. Writes:
+`forces/<fp>/` with index.parquet and memory-mappable .npy arrays (see schema.FORCES_ARRAYS).
+Run: `fftool forces`. The math lives in `fftool.socialforce`; this module only orchestrates.
+
+A window's features depend only on its own 20 steps, so each distinct window (source, split, start)
+is computed once and shared by every benchmark part that contains it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import torch
+
+from fftool.config import ForcesConfig
+from fftool.groups import cluster_frames
+from fftool.schema import (
+    AGENT_WINDOWS_FILE,
+    FORCES_ARRAYS,
+    FORCES_INDEX_FILE,
+    TRACKS_FILE,
+    WINDOWS_FILE,
+)
+from fftool.socialforce import group_ids, window_forces
+from fftool.store import Artifact
+
+NAME: Final = "forces"
+VERSION: Final = 1
+INPUTS: Final = ("tracks", "windows")
+# Pairwise work per batch (windows × actors² × steps); bounds memory at about 100 MB in float64.
+_PAIR_BUDGET = 2_000_000
+
+
+@dataclass
+class Sequence:
+    """One raw file as dense (pedestrian × step) arrays."""
+
+    first_step: int
+    position: np.ndarray  # (P, S, 2)
+    present: np.ndarray  # (P, S) bool
+    label: np.ndarray  # (P, S) DBSCAN label, -1 noise or absent
+    ped_id: np.ndarray  # (P,) sorted
+
+
+def _sequences(tracks: pd.DataFrame, cfg: ForcesConfig) -> dict[tuple[str, str], Sequence]:
+    frame_key = tracks.groupby(["source", "split", "step"], observed=True, sort=False).ngroup().to_numpy()
+    labels = cluster_frames(frame_key, tracks[["x", "y"]].to_numpy(), cfg.dbscan_eps_m, cfg.dbscan_min_samples)
+    tracks = tracks.assign(label=labels)
+    sequences = {}
+    for (source, split), rows in tracks.groupby(["source", "split"], observed=True, sort=False):
+        ped_id, ped = np.unique(rows["ped_id"].to_numpy(), return_inverse=True)
+        step = rows["step"].to_numpy()
+        first, n_steps = int(step.min()), int(step.max() - step.min() + 1)
+        position = np.zeros((ped_id.size, n_steps, 2))
+        present = np.zeros((ped_id.size, n_steps), dtype=bool)
+        label = np.full((ped_id.size, n_steps), -1, dtype=np.int64)
+        position[ped, step - first] = rows[["x", "y"]].to_numpy()
+        present[ped, step - first] = True
+        label[ped, step - first] = rows["label"].to_numpy()
+        sequences[(str(source), str(split))] = Sequence(first, position, present, label, ped_id)
+    return sequences
+
+
+@dataclass
+class _Features:
+    """Per distinct agent-window results of one sequence, keyed by (first_step, ped_id)."""
+
+    first_step: np.ndarray
+    ped_id: np.ndarray
+    arrays: dict[str, np.ndarray]
+    pairs: int
+    grouped_pairs: int
+
+
+def _compute_sequence(
+    seq: Sequence,
+    starts: np.ndarray,
+    cfg: ForcesConfig,
+    *,
+    dt_s: float,
+    obs_len: int,
+    window_len: int,
+    device: torch.device,
+) -> _Features:
+    """Forces for the windows starting at `starts` (absolute steps) of one sequence, in padded batches."""
+    steps = (starts - seq.first_step)[:, None] + np.arange(window_len)  # (W, L) local step indices
+    window_present = seq.present[:, steps].transpose(1, 0, 2)  # (W, P, L)
+    valid = window_present.all(axis=-1)  # (W, P)
+    actors = window_present.any(axis=-1) if cfg.neighbours == "present" else valid
+    n_actors = actors.sum(axis=1)
+    order = np.argsort(n_actors, kind="stable")
+    outputs: dict[str, list[np.ndarray]] = {name: [] for name in FORCES_ARRAYS}
+    keys_first, keys_ped = [], []
+    pairs = grouped = 0
+    for chunk in _chunks(order, n_actors[order], window_len):
+        slot_ped, slot_mask = _slots(actors[chunk])  # (B, N) pedestrian index per slot
+        chunk_steps = steps[chunk]  # (B, L)
+        ped_index = np.where(slot_mask, slot_ped, 0)
+        position = seq.position[ped_index[:, :, None], chunk_steps[:, None, :]]  # (B, N, L, 2)
+        present = seq.present[ped_index[:, :, None], chunk_steps[:, None, :]] & slot_mask[:, :, None]
+        label = np.where(present[:, :, :obs_len], seq.label[ped_index[:, :, None], chunk_steps[:, None, :obs_len]], -1)
+        is_valid = valid[chunk[:, None], ped_index] & slot_mask  # (B, N)
+        tensors = {
+            name: torch.as_tensor(value, device=device)
+            for name, value in {"position": position, "present": present, "label": label}.items()
+        }
+        result = window_forces(
+            tensors["position"],
+            tensors["present"],
+            tensors["position"][:, :, -1],  # the goal: ground truth at the last window step
+            tensors["label"],
+            cfg,
+            dt_s=dt_s,
+            obs_len=obs_len,
+            heading=torch.as_tensor(~is_valid & slot_mask, device=device),
+        )
+        groups = result.groups & torch.as_tensor(is_valid[:, :, None] & is_valid[:, None, :], device=device)
+        gid = group_ids(groups).cpu().numpy()
+        pairs += int((is_valid.sum(1) * (is_valid.sum(1) - 1)).sum())
+        grouped += int(groups.sum())
+        keep = is_valid
+        outputs["f_dr"].append(result.f_dr.cpu().numpy()[keep])
+        outputs["f_re"].append(result.f_re.cpu().numpy()[keep])
+        outputs["velocity"].append(result.velocity.cpu().numpy()[keep])
+        outputs["goal"].append(position[:, :, -1][keep])
+        outputs["speed0"].append(result.speed0.cpu().numpy()[keep])
+        outputs["group_id"].append(gid[keep])
+        keys_first.append(np.broadcast_to(starts[chunk][:, None], keep.shape)[keep])
+        keys_ped.append(seq.ped_id[ped_index][keep])
+    dtypes = {"group_id": np.int32}
+    arrays = {name: np.concatenate(parts).astype(dtypes.get(name, np.float32)) for name, parts in outputs.items()}
+    return _Features(np.concatenate(keys_first), np.concatenate(keys_ped), arrays, pairs, grouped)
+
+
+def _chunks(order: np.ndarray, sorted_actors: np.ndarray, window_len: int) -> list[np.ndarray]:
+    """Split windows (sorted by actor count) into batches of at most _PAIR_BUDGET pair-steps."""
+    chunks, begin = [], 0
+    while begin < order.size:
+        end = begin + 1
+        while (
+            end < order.size and (end + 1 - begin) * max(int(sorted_actors[end]), 1) ** 2 * window_len <= _PAIR_BUDGET
+        ):
+            end += 1
+        chunks.append(order[begin:end])
+        begin = end
+    return chunks
+
+
+def _slots(actors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B, P) bool -> (B, N) pedestrian indices in ascending order per row, and the slot mask."""
+    n = max(int(actors.sum(axis=1).max()), 1)
+    rank = np.cumsum(actors, axis=1) - 1  # slot of each actor
+    slot_ped = np.zeros((actors.shape[0], n), dtype=np.int64)
+    rows, peds = np.nonzero(actors)
+    slot_ped[rows, rank[rows, peds]] = peds
+    mask = np.arange(n) < actors.sum(axis=1)[:, None]
+    return slot_ped, mask
+
+
+def build(
+    cfg: ForcesConfig,
+    tracks: Artifact,
+    windows: Artifact,
+    out_dir: Path,
+    device: torch.device | None = None,
+    on_sequence: Callable[[str, int], None] | None = None,
+) -> dict[str, Any]:
+    """Compute the features of every valid agent-window; write index.parquet and the .npy arrays.
+
+    Args:
+        cfg: the `forces` section of the configuration.
+        tracks, windows: the input artifacts.
+        out_dir: the artifact's build folder.
+        device: torch device for the force math (default CPU).
+        on_sequence: called with (source:split, windows done) after each raw file (progress).
+    """
+    device = device or torch.device("cpu")
+    dt_s = float(tracks.manifest.stats["dt_s"])
+    obs_len, window_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["window_len"])
+    started = time.perf_counter()
+    track_table = pq.read_table(tracks.file(TRACKS_FILE), columns=["source", "split", "step", "ped_id", "x", "y"])
+    sequences = _sequences(track_table.to_pandas(), cfg)
+    window_table = pq.read_table(
+        windows.file(WINDOWS_FILE), columns=["benchmark", "part", "window_id", "source", "split", "first_step"]
+    ).to_pandas()
+    agents = pq.read_table(
+        windows.file(AGENT_WINDOWS_FILE), columns=["benchmark", "part", "window_id", "ped_id"]
+    ).to_pandas()
+    setup_s = time.perf_counter() - started
+
+    features, seconds = [], {}
+    distinct = window_table.drop_duplicates(["source", "split", "first_step"])
+    for (source, split), rows in distinct.groupby(["source", "split"], observed=True, sort=True):
+        tic = time.perf_counter()
+        result = _compute_sequence(
+            sequences[(str(source), str(split))],
+            np.sort(rows["first_step"].to_numpy()),
+            cfg,
+            dt_s=dt_s,
+            obs_len=obs_len,
+            window_len=window_len,
+            device=device,
+        )
+        seconds[f"{source}:{split}"] = time.perf_counter() - tic
+        features.append(
+            (
+                pd.DataFrame(
+                    {
+                        "source": str(source),
+                        "split": str(split),
+                        "first_step": result.first_step,
+                        "ped_id": result.ped_id,
+                    }
+                ),
+                result,
+            )
+        )
+        if on_sequence:
+            on_sequence(f"{source}:{split}", len(rows))
+
+    keys = pd.concat([frame for frame, _ in features], ignore_index=True)
+    keys["feature_row"] = np.arange(len(keys))
+    rows = agents.merge(window_table, on=["benchmark", "part", "window_id"], how="left", sort=False)
+    rows["source"], rows["split"] = rows["source"].astype(str), rows["split"].astype(str)
+    rows = rows.merge(keys, on=["source", "split", "first_step", "ped_id"], how="left", sort=False)
+    assert rows["feature_row"].notna().all(), "every valid agent-window must have features"
+    take = rows["feature_row"].to_numpy(dtype=np.int64)
+    for name, filename in FORCES_ARRAYS.items():
+        np.save(out_dir / filename, np.concatenate([r.arrays[name] for _, r in features])[take])
+    pq.write_table(
+        pa.Table.from_pandas(agents[["benchmark", "part", "window_id", "ped_id"]], preserve_index=False),
+        out_dir / FORCES_INDEX_FILE,
+    )
+    return _summary(agents, rows, features, take, out_dir, seconds, setup_s, time.perf_counter() - started)
+
+
+def _summary(agents, rows, features, take, out_dir, seconds, setup_s, total_s) -> dict[str, Any]:
+    f_dr = np.load(out_dir / FORCES_ARRAYS["f_dr"], mmap_mode="r")
+    f_re = np.load(out_dir / FORCES_ARRAYS["f_re"], mmap_mode="r")
+    dr_norm = np.linalg.norm(f_dr, axis=-1).mean(axis=1)  # (M,) mean over steps
+    re_norm = np.linalg.norm(f_re, axis=-1).mean(axis=1)
+    per_sequence_pairs = {}
+    for frame, result in features:
+        per_sequence_pairs[(frame["source"].iat[0], frame["split"].iat[0])] = (result.pairs, result.grouped_pairs)
+    summary = []
+    for (benchmark, part), group in agents.groupby(["benchmark", "part"], observed=True, sort=False):
+        index = group.index.to_numpy()
+        members = rows.loc[index, ["source", "split"]].drop_duplicates().itertuples(index=False)
+        members = [tuple(m) for m in members]
+        pairs = sum(per_sequence_pairs[m][0] for m in members)
+        grouped = sum(per_sequence_pairs[m][1] for m in members)
+        summary.append(
+            {
+                "benchmark": str(benchmark),
+                "part": str(part),
+                "agent_windows": int(index.size),
+                "mean_abs_f_dr": float(dr_norm[index].mean()),
+                "mean_abs_f_re": float(re_norm[index].mean()),
+                "grouped_pair_share": grouped / pairs if pairs else 0.0,
+                "seconds": sum(seconds[f"{s}:{p}"] for s, p in members),
+            }
+        )
+    return {
+        "summary": summary,
+        "seconds_total": total_s,
+        "seconds_setup": setup_s,
+        "seconds_per_sequence": seconds,
+        "distinct_agent_windows": int(sum(r.first_step.size for _, r in features)),
+    }
