@@ -19,13 +19,14 @@ CONSTRAINTS = ("-c", "constraints.txt")
 
 @nox.session
 def main(session: nox.Session) -> None:
-    """The end-to-end job on the real data: fetch it if it is not beside the checkout, then ingest."""
+    """The end-to-end job on the real data: fetch it if it is not beside the checkout, ingest, forces."""
     session.install(*CONSTRAINTS, "-e", ".")
     raw = SHARED_RAW
     if not raw.is_dir():
         raw = Path("data/eth_ucy/raw")
         session.run("fftool", "fetch-data", "--dest", str(raw))
     session.run("fftool", "ingest", "--raw", str(raw), *session.posargs)
+    session.run("fftool", "forces", "--set", f"data.raw_dir={str(raw)!r}", *session.posargs)
 
 
 @nox.session
@@ -50,3 +51,4 @@ def bench(session: nox.Session) -> None:
     """Benchmarks on the real data: time, peak memory and ratios against plain references."""
     session.install(*CONSTRAINTS, "-e", ".")
     session.run("python", "benchmarks/bench_ingest.py", *session.posargs)
+    session.run("python", "benchmarks/bench_forces.py", *session.posargs)

@@ -26,10 +26,8 @@ def _norm(vector: Tensor) -> Tensor:
 
 
 def _unit(vector: Tensor) -> Tensor:
-    """vector / |vector|, and 0 for the zero vector (no NaN, no NaN gradient)."""
-    length = _norm(vector)
-    safe = torch.where(length > 0, length, torch.ones_like(length))
-    return torch.where((length > 0)[..., None], vector / safe[..., None], torch.zeros_like(vector))
+    """vector / |vector|, and 0 for the zero vector (0 / tiny; no NaN, no NaN gradient)."""
+    return vector / _norm(vector).clamp_min(torch.finfo(vector.dtype).tiny)[..., None]
 
 
 def desired_direction(position: Tensor, goal: Tensor, min_distance_m: float) -> tuple[Tensor, Tensor]:
@@ -75,9 +73,8 @@ def pair_repulsion(
     radicand = (n1 + n2) ** 2 - step**2
     live = radicand > RADICAND_MIN
     b = 0.5 * torch.sqrt(radicand.clamp_min(RADICAND_MIN))
-    grad_b = ((n1 + n2) / (4 * b))[..., None] * (_unit(r_ab) + _unit(ahead))
-    force = (potential(b, v0_m2_s2, sigma_m) / sigma_m)[..., None] * grad_b
-    return torch.where(live[..., None], force, torch.zeros_like(force))
+    scale = potential(b, v0_m2_s2, sigma_m) / sigma_m * (n1 + n2) / (4 * b) * live  # |f| / |grad-direction|
+    return scale[..., None] * (_unit(r_ab) + _unit(ahead))
 
 
 def fov_weight(direction_a: Tensor, toward_b: Tensor, fov_deg: float, out_of_view: float) -> Tensor:
@@ -194,8 +191,8 @@ def social_forces(
     present_t = present.transpose(1, 2)  # (B, T, N)
     not_self = ~torch.eye(N, dtype=torch.bool, device=position.device)
     interacts = present_t[..., :, None] & present_t[..., None, :] & not_self & ~groups[:, None]
-    f_re = torch.where(interacts[..., None], weight[..., None] * f_ab, torch.zeros_like(f_ab)).sum(dim=-2)
-    f_re = torch.where((defined & present)[..., None], f_re.transpose(1, 2), torch.zeros_like(f_dr))
+    f_re = ((weight * interacts)[..., None] * f_ab).sum(dim=-2)  # (B, T, N, 2)
+    f_re = f_re.transpose(1, 2) * (defined & present)[..., None]
     return f_dr, f_re
 
 
