@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import subprocess
 import sys
 import tempfile
@@ -82,10 +81,9 @@ def _subset(raw: Path) -> dict:
     import torch
 
     from fftool import forces
-    from fftool.config import ForcesConfig
+    from fftool.config import ForcesConfig, IngestConfig
     from fftool.ingest import build as ingest_build
-    from fftool.config import IngestConfig
-    from fftool.socialforce import finite_difference_velocity, desired_speed, same_group
+    from fftool.socialforce import desired_speed, finite_difference_velocity, same_group
 
     cfg = ForcesConfig()
     with tempfile.TemporaryDirectory() as tmp:
