@@ -45,7 +45,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> dict:
     if not REAL_RAW.is_dir():
         pytest.skip("real data absent")  # the real_raw fixture below fails instead when CI requires data
     cfg = load_config(None, [f"data.raw_dir={str(REAL_RAW.resolve())!r}"])
-    return pipeline.run(cfg, ArtifactStore(tmp_path_factory.mktemp("art")), ["windows"])
+    return pipeline.run(cfg, ArtifactStore(tmp_path_factory.mktemp("art")), ["forces"])
 
 
 def test_every_raw_file_is_ingested(real_raw: Path, built: dict) -> None:
@@ -88,3 +88,32 @@ def test_agent_window_positions_match_the_raw_file(real_raw: Path, built: dict) 
         first = zara1.loc[row["window_id"], "first_step"]
         expected = [lookup[((first + t) * 10, row["ped_id"])] for t in range(20)]
         np.testing.assert_array_equal(np.asarray(row["xy"]).reshape(20, 2), expected)
+
+
+def test_forces_on_every_agent_window(real_raw: Path, built: dict) -> None:
+    windows = {(r["benchmark"], r["part"]): r["agent_windows"] for r in built["windows"].manifest.stats["summary"]}
+    summary = built["forces"].manifest.stats["summary"]
+    assert {(r["benchmark"], r["part"]): r["agent_windows"] for r in summary} == windows
+    for row in summary:
+        assert 0.05 < row["mean_abs_f_dr"] < 2.0, row  # m/s², a walking pace corrected over tau = 0.5 s
+        assert 0.0 < row["mean_abs_f_re"] < row["mean_abs_f_dr"], row
+        assert 0.0 < row["grouped_pair_share"] < 0.5, row
+    f_dr = np.load(built["forces"].file("f_dr.npy"), mmap_mode="r")
+    assert np.isfinite(f_dr).all() and (f_dr[:, -1] == 0).all()  # at the goal: no driving force
+
+
+def test_explain_draws_on_the_real_scene(real_raw: Path, built: dict, tmp_path: Path) -> None:
+    from fftool.explain import explain_window
+
+    png = explain_window(
+        scene="zara2",
+        frame_id=5720,
+        out=tmp_path / "zara2.png",
+        windows=built["windows"],
+        forces=built["forces"],
+        tracks=built["tracks"],
+        scenes_dir=real_raw.parent / "scenes",
+    )
+    import matplotlib.image
+
+    assert matplotlib.image.imread(png).shape[0] > 500  # drawn over the 720×576 reference image
