@@ -8,8 +8,8 @@ from pathlib import Path
 import fftool
 
 PACKAGE = Path(fftool.__file__).parent
-LEAVES = {"errors", "scenes", "hashing", "ui"}
-STAGE_MODULES = {"ingest", "windows"}
+LEAVES = {"errors", "scenes", "hashing", "ui", "groups"}
+STAGE_MODULES = {"ingest", "windows", "forces"}
 ORCHESTRATION = {"pipeline", "cli", "__main__"}
 
 
@@ -43,3 +43,8 @@ def test_only_orchestration_imports_the_cli_or_pipeline() -> None:
     for path in PACKAGE.glob("*.py"):
         if path.stem not in ORCHESTRATION:
             assert not _fftool_imports(path.stem) & {"cli", "pipeline"}, path.stem
+
+
+def test_the_force_math_depends_only_on_its_config() -> None:
+    # socialforce.py is shared by the forces stage and the model: it must not reach into stages or I/O.
+    assert _fftool_imports("socialforce") == {"config"}
