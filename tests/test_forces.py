@@ -123,6 +123,11 @@ def test_cli_forces_and_explain_without_scene_image(tmp_path: Path, raw_tree: Pa
     runner = CliRunner()
     args = ["forces", "--root", str(root), "--set", f"data.raw_dir={str(raw_tree)!r}"]
     args += ["--set", f"data.scenes_dir={str(tmp_path / 'none')!r}"]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 1
+    assert "Error: no 'tracks' artifact for these parameters" in first.output
+    assert "run `fftool ingest` first" in first.output
+    assert runner.invoke(app, ["ingest", "--root", str(root), "--raw", str(raw_tree)]).exit_code == 0
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "mean |F_dr|" in result.output

@@ -106,7 +106,9 @@ def ingest(
 
     overrides = list(set_ or []) + ([f"data.raw_dir={str(raw)!r}"] if raw else [])
     cfg = load_config(config, overrides)
-    built = pipeline.run(cfg, _store(root), ["windows"], force=["tracks", "windows"] if force else [])
+    built = pipeline.run(
+        cfg, _store(root), ["tracks", "windows"], force=["tracks", "windows"] if force else [], upstream=False
+    )
     out_console.print(windows_summary_table(built["windows"]))
 
 
@@ -156,7 +158,9 @@ def forces(
 
     cfg = load_config(config, list(set_ or []))
     runtime = pipeline.Runtime(device=device)
-    built = pipeline.run(cfg, _store(root), ["forces"], force=["forces"] if force else [], runtime=runtime)
+    built = pipeline.run(
+        cfg, _store(root), ["forces"], force=["forces"] if force else [], runtime=runtime, upstream=False
+    )
     out_console.print(forces_summary_table(built["forces"]))
     if explain:
         from fftool.explain import explain_window

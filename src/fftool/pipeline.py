@@ -155,12 +155,20 @@ def run(
     targets: Iterable[str],
     force: Iterable[str] = (),
     runtime: Runtime | None = None,
+    upstream: bool = True,
 ) -> dict[str, Artifact]:
-    """Build what is missing for `targets` (and rebuild the stages named in `force`)."""
-    forced = set(force)
+    """Build what is missing for `targets` (and rebuild the stages named in `force`).
+
+    With `upstream=False` (a single stage's command) the stages before the targets are not built:
+    their artifacts must exist, else the error names the command that makes them.
+    """
+    forced, targets = set(force), list(targets)
     built: dict[str, Artifact] = {}
     for item in resolve(cfg, targets):
         stage, fp = item.stage, item.fingerprint
+        if not upstream and stage.name not in targets:
+            built[stage.name] = store.require(stage.name, fp, stage.version, stage.command)
+            continue
         existing = store.lookup(stage.name, fp)
         if existing is not None and stage.name not in forced:
             check_schema(existing, stage.name, stage.version, stage.command)
