@@ -179,6 +179,22 @@ def forces(
         log(f"wrote {png}")
 
 
+@app.command(epilog="Example: fftool maps --set maps.resolution_m=0.25")
+@_boundary
+def maps(
+    config: ConfigOption = None, set_: SetOption = None, root: RootOption = None, force: ForceOption = False
+) -> None:
+    """Warp each scene image onto a metric ground grid and derive semantic channels (with check PNGs)."""
+    from fftool import pipeline
+    from fftool.config import load_config
+    from fftool.reports import maps_table
+    from fftool.ui import out_console
+
+    cfg = load_config(config, list(set_ or []))
+    built = pipeline.run(cfg, _store(root), ["maps"], force=["maps"] if force else [], upstream=False)
+    out_console.print(maps_table(built["maps"]))
+
+
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")
 @_boundary
 def fetch_data(

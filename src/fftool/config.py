@@ -92,6 +92,53 @@ class ForcesConfig(_Section):
     neighbours: Literal["valid", "present"] = "valid"
 
 
+class MapsConfig(_Section):
+    """World-aligned semantic rasters of each scene (stage `maps`), built from the image alone."""
+
+    resolution_m: float = Field(0.25, gt=0)  # metres per cell (Goal-SAR's UCY cell is 0.17 m)
+    margin_m: float = Field(2.0, ge=0)  # around the image's ground footprint
+    # Colour clusters (k-means in CIE Lab) -> one channel each, ordered by mean lightness.
+    colour_clusters: int = Field(4, ge=1, le=16)
+    seed: int = 0  # k-means initialisation
+
+
+class GoalConfig(_Section):
+    """The U-Net goal estimator and its training (stage `goal`, command `fftool train-goal`)."""
+
+    # Input crop around the last observed position, in cells of `resolution_m`.
+    resolution_m: float = Field(0.5, gt=0)
+    crop_cells: int = Field(48, gt=0)  # 48 × 0.5 m = ±12 m: covers the largest 12-step displacement
+    heatmap_sigma_cells: float = Field(1.0, gt=0)  # Gaussian of each observed position and of the target
+    # U-Net: encoder widths (one pooling between consecutive entries), decoder mirrors them.
+    widths: tuple[int, ...] = (32, 32, 64, 64, 64)
+    # Loss = BCE + MSE(softargmax goal, true goal) in cells, with `loss_lambda` on one of them.
+    loss_lambda: float = Field(1e6, gt=0)  # the paper's λ
+    lambda_scales: Literal["bce", "mse"] = "bce"  # Goal-SAR puts 1e6 on the BCE (docs/goal.md)
+    epochs: int = Field(20, gt=0)
+    batch_size: int = Field(64, gt=0)
+    lr: float = Field(1e-4, gt=0)  # Adam, as Goal-SAR
+    grad_clip: float = Field(1.0, gt=0)
+    # Training windows: every `train_stride`-th start step (Goal-SAR uses 5), at most `max_train` per epoch.
+    train_stride: int = Field(5, gt=0)
+    max_train: int = Field(0, ge=0)  # 0 = all
+    augment: bool = True  # random rotation in [0, 2π) and mirror, applied to map and positions alike
+    val_max: int = Field(1000, ge=0)  # validation agent-windows per epoch (0 = all)
+    seed: int = 0
+
+
+class GoalsConfig(_Section):
+    """Goal sampling from the trained U-Net (stage `goals`, command `fftool sample-goals`)."""
+
+    k: int = Field(20, gt=0)
+    method: Literal["ttst", "multinomial"] = "ttst"  # mode + k-means centres (Goal-SAR), or plain draws
+    temperature: float = Field(1.0, gt=0)  # P = sigmoid(logits / T)
+    threshold: float = Field(0.05, ge=0, lt=1)  # cells below threshold · max P are dropped (Goal-SAR's ρ)
+    samples: int = Field(2000, gt=0)  # draws per agent clustered by k-means (Goal-SAR: 10,000)
+    kmeans_iterations: int = Field(20, gt=0)
+    parts: tuple[Literal["train", "val", "test"], ...] = ("val", "test")
+    seed: int = 0
+
+
 class PipelineConfig(_Section):
     """The whole pipeline's configuration, as resolved from defaults, a file and overrides."""
 
@@ -99,6 +146,9 @@ class PipelineConfig(_Section):
     ingest: IngestConfig = IngestConfig()
     windows: WindowsConfig = WindowsConfig()
     forces: ForcesConfig = ForcesConfig()
+    maps: MapsConfig = MapsConfig()
+    goal: GoalConfig = GoalConfig()
+    goals: GoalsConfig = GoalsConfig()
 
 
 def _parse_value(text: str) -> Any:

@@ -2,6 +2,7 @@
 
     raw ETH/UCY txt ──▶ tracks ──▶ windows ──▶ forces
                           └──────────────────────▲
+    scene images + homographies ──▶ maps
 
 Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
 fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
@@ -18,7 +19,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from fftool import forces, ingest, windows
+from fftool import forces, ingest, maps, windows
 from fftool.config import PipelineConfig
 from fftool.errors import FftoolError
 from fftool.hashing import fingerprint
@@ -93,6 +94,15 @@ def _build_forces(
     return stats
 
 
+def _build_maps(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+) -> dict[str, Any]:
+    stats = maps.build(cfg.maps, Path(cfg.data.scenes_dir), ctx.dir)
+    for message in stats["warnings"]:
+        warn(message)
+    return stats
+
+
 STAGES: dict[str, Stage] = {
     stage.name: stage
     for stage in (
@@ -107,6 +117,15 @@ STAGES: dict[str, Stage] = {
         ),
         Stage(windows.NAME, windows.VERSION, windows.INPUTS, "fftool ingest", lambda cfg: cfg.windows, _build_windows),
         Stage(forces.NAME, forces.VERSION, forces.INPUTS, "fftool forces", lambda cfg: cfg.forces, _build_forces),
+        Stage(
+            maps.NAME,
+            maps.VERSION,
+            maps.INPUTS,
+            "fftool maps",
+            lambda cfg: cfg.maps,
+            _build_maps,
+            lambda cfg: maps.scene_input_hashes(Path(cfg.data.scenes_dir)),
+        ),
     )
 }
 

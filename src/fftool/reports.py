@@ -95,3 +95,26 @@ def forces_summary_table(forces: Artifact) -> Table:
     )
     table.caption_justify = "left"
     return table
+
+
+def maps_table(maps: Artifact) -> Table:
+    """Per scene: raster size, cell size, world extent, and where to look at it."""
+    stats = maps.manifest.stats
+    table = Table(title=f"scene maps ({maps.id})", title_justify="left", box=box.SIMPLE_HEAD)
+    for name in ("scene", "cells (W × H)", "m/cell", "x range (m)", "y range (m)", "check figure"):
+        table.add_column(name, no_wrap=True)
+    for scene, t in stats["scenes"].items():
+        x0, y0, r = t["origin_x_m"], t["origin_y_m"], t["resolution_m"]
+        table.add_row(
+            scene,
+            f"{t['width']} × {t['height']}",
+            f"{r:g}",
+            f"{x0:.1f} … {x0 + t['width'] * r:.1f}",
+            f"{y0:.1f} … {y0 + t['height'] * r:.1f}",
+            str(maps.path / f"{scene}_check.png"),
+        )
+    for scene in stats["without_geometry"]:
+        table.add_row(scene, "no geometry", "", "", "", "")
+    table.caption = f"channels: {', '.join(stats['channels'])}"
+    table.caption_justify = "left"
+    return table

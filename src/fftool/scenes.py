@@ -75,3 +75,19 @@ def _leave_one_out() -> dict[str, dict[str, tuple[tuple[str, str], ...]]]:
 
 # LEAVE_ONE_OUT[benchmark][part] = ((source, split), ...): the raw files that make up that part.
 LEAVE_ONE_OUT: Final[dict[str, dict[str, tuple[tuple[str, str], ...]]]] = _leave_one_out()
+
+
+# Scene geometry (scenes/<scene>/reference.png + world_to_pixel.txt) for each source. crowds_zara03
+# has no image of its own; the scenes README finds its trajectories plausible on the zara2 image
+# (same camera), so it shares zara2's map. uni_examples was filmed from another view: no map.
+SOURCE_SCENE: Final[dict[str, str | None]] = {
+    "biwi_eth": "eth",
+    "biwi_hotel": "hotel",
+    "crowds_zara01": "zara1",
+    "crowds_zara02": "zara2",
+    "crowds_zara03": "zara2",
+    "students001": "univ",
+    "students003": "univ",
+    "uni_examples": None,
+}
+SCENES: Final[tuple[str, ...]] = ("eth", "hotel", "univ", "zara1", "zara2")

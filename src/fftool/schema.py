@@ -76,3 +76,18 @@ FORCES_ARRAYS: Final = {
     "speed0": "speed0.npy",  # (M, L) float32 desired speed v0
     "group_id": "group_id.npy",  # (M,) int32 window-local group (smallest member slot), -1 alone
 }
+
+# --- maps artifact --------------------------------------------------------------------------------
+# One (C, H, W) float32 raster per scene, `<scene>.npy`; cell [i, j] covers world
+# x in [x0 + j·res, x0 + (j+1)·res), y in [y0 + i·res, y0 + (i+1)·res) (row index grows with y).
+# transforms.json: {scene: {"origin_x_m", "origin_y_m", "resolution_m", "width", "height"}} and the
+# channel names. A source without geometry (uni_examples) has no raster: its crops are all zero.
+MAPS_TRANSFORMS_FILE: Final = "transforms.json"
+
+
+def map_file(scene: str) -> str:
+    return f"{scene}.npy"
+
+
+def map_check_file(scene: str) -> str:
+    return f"{scene}_check.png"

@@ -1,0 +1,174 @@
+"""World-aligned semantic maps of each scene, built from its image and homography only.
+
+Reads: `scenes/<scene>/reference.png`, `world_to_pixel.txt` and (eth, hotel) `obstacle_map.png`.
+Writes: `maps/<fp>/<scene>.npy` (C, H, W), transforms.json, and `<scene>_check.png` for people to check.
+Run: `fftool maps`.
+
+The raster covers the ground footprint of the image (its corners through the inverse homography) plus
+a margin, so no trajectory is used to build any map, and a test scene's map never sees its test data.
+Channels: 0 = inside the image footprint, 1 = obstacle (where an obstacle map exists), 2.. = one-hot
+colour clusters (k-means in CIE Lab, OpenCV), ordered by mean lightness so channel meaning is
+comparable across scenes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, Final
+
+import cv2
+import numpy as np
+
+from fftool.config import MapsConfig
+from fftool.errors import RawDataError
+from fftool.hashing import sha256_file
+from fftool.scenes import SCENES
+from fftool.schema import MAPS_TRANSFORMS_FILE, map_check_file, map_file
+
+NAME: Final = "maps"
+VERSION: Final = 1
+INPUTS: Final = ()
+_FILES = ("reference.png", "world_to_pixel.txt", "obstacle_map.png")
+
+
+def scene_input_hashes(scenes_dir: Path) -> dict[str, str]:
+    """Content hashes of every scene file present (missing scenes fall back to no map)."""
+    return {
+        f"scenes/{scene}/{name}": sha256_file(scenes_dir / scene / name)
+        for scene in SCENES
+        for name in _FILES
+        if (scenes_dir / scene / name).is_file()
+    }
+
+
+def channel_names(cfg: MapsConfig) -> list[str]:
+    return ["inside", "obstacle", *(f"colour{k}" for k in range(cfg.colour_clusters))]
+
+
+def _read_homography(path: Path) -> np.ndarray:
+    try:
+        matrix = np.loadtxt(path)
+    except ValueError as exc:
+        raise RawDataError(path, f"expected a 3×3 matrix of numbers ({exc})") from exc
+    if matrix.shape != (3, 3) or not np.isfinite(matrix).all() or abs(np.linalg.det(matrix)) < 1e-12:
+        raise RawDataError(path, f"expected an invertible 3×3 world->pixel matrix, found shape {matrix.shape}")
+    return matrix
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise RawDataError(path, "not a readable image")
+    return image
+
+
+def build_scene(scene_dir: Path, cfg: MapsConfig) -> tuple[np.ndarray, dict[str, Any], np.ndarray]:
+    """(C, H, W) raster, its transform, and the warped RGB image (H, W, 3) for the check figure."""
+    world_to_pixel = _read_homography(scene_dir / "world_to_pixel.txt")
+    image = _read_image(scene_dir / "reference.png", cv2.IMREAD_COLOR)
+    h, w = image.shape[:2]
+    corners = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], float) @ np.linalg.inv(world_to_pixel).T
+    corners = corners[:, :2] / corners[:, 2:]
+    res = cfg.resolution_m
+    low = corners.min(0) - cfg.margin_m
+    width, height = (np.ceil((corners.max(0) + cfg.margin_m - low) / res)).astype(int)
+    # destination cell (col j, row i) -> its world centre -> image pixel
+    cell_to_world = np.array([[res, 0, low[0] + res / 2], [0, res, low[1] + res / 2], [0, 0, 1]])
+    cell_to_pixel = world_to_pixel @ cell_to_world
+    flags = cv2.WARP_INVERSE_MAP
+    warped = cv2.warpPerspective(image, cell_to_pixel, (width, height), flags=flags | cv2.INTER_LINEAR)
+    inside = cv2.warpPerspective(
+        np.full((h, w), 255, np.uint8), cell_to_pixel, (width, height), flags=flags | cv2.INTER_NEAREST
+    )
+    inside = inside > 127
+    obstacle = np.zeros((height, width), np.float32)
+    if (scene_dir / "obstacle_map.png").is_file():
+        gray = _read_image(scene_dir / "obstacle_map.png", cv2.IMREAD_GRAYSCALE)
+        obstacle = cv2.warpPerspective(gray, cell_to_pixel, (width, height), flags=flags | cv2.INTER_NEAREST) > 127
+        obstacle = obstacle.astype(np.float32)
+
+    lab = cv2.cvtColor(warped, cv2.COLOR_BGR2LAB).reshape(-1, 3).astype(np.float32)
+    pixels = lab[inside.reshape(-1)]
+    cv2.setRNGSeed(cfg.seed)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.1)
+    _, labels, centres = cv2.kmeans(pixels, cfg.colour_clusters, None, criteria, 3, cv2.KMEANS_PP_CENTERS)
+    rank = np.argsort(np.argsort(centres[:, 0]))  # lightness order: channel 2 is the darkest cluster
+    colour = np.zeros((cfg.colour_clusters, height * width), np.float32)
+    colour[rank[labels[:, 0]], np.flatnonzero(inside.reshape(-1))] = 1.0
+    raster = np.concatenate(
+        [inside[None].astype(np.float32), obstacle[None], colour.reshape(-1, height, width)], axis=0
+    )
+    transform = {
+        "origin_x_m": float(low[0]),
+        "origin_y_m": float(low[1]),
+        "resolution_m": res,
+        "width": int(width),
+        "height": int(height),
+    }
+    return raster, transform, cv2.cvtColor(warped, cv2.COLOR_BGR2RGB)
+
+
+def _check_figure(
+    scene: str, scene_dir: Path, raster: np.ndarray, warped: np.ndarray, transform: dict, out: Path
+) -> None:
+    """reference image | warped onto the ground grid | semantic channels, side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    extent = (
+        transform["origin_x_m"],
+        transform["origin_x_m"] + transform["width"] * transform["resolution_m"],
+        transform["origin_y_m"],
+        transform["origin_y_m"] + transform["height"] * transform["resolution_m"],
+    )
+    labels = np.where(raster[0] > 0, raster[2:].argmax(0) + 1, 0)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5), dpi=90)
+    axes[0].imshow(cv2.cvtColor(cv2.imread(str(scene_dir / "reference.png")), cv2.COLOR_BGR2RGB))
+    axes[0].set_title(f"{scene}: reference image (pixels)")
+    axes[1].imshow(warped, origin="lower", extent=extent)
+    axes[1].set_title("warped onto the ground plane (metres, y up)")
+    axes[2].imshow(labels, origin="lower", extent=extent, cmap="Set2", vmin=0, vmax=7, interpolation="nearest")
+    if raster[1].any():
+        axes[2].contour(raster[1], levels=[0.5], colors="black", origin="lower", extent=extent, linewidths=1.0)
+    axes[2].set_title(f"colour clusters (dark→light){' + obstacles (black)' if raster[1].any() else ''}")
+    for ax in axes[1:]:
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    fig.tight_layout()
+    partial = out.with_name(f".{out.name}.partial")
+    fig.savefig(partial, format="png")
+    plt.close(fig)
+    os.replace(partial, out)
+
+
+def build(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any]:
+    """One raster per scene with geometry; transforms.json; check PNGs. Returns the manifest stats.
+
+    Args:
+        cfg: the `maps` section of the configuration.
+        scenes_dir: folder with one sub-folder per scene.
+        out_dir: the artifact's build folder.
+    """
+    transforms, missing = {}, []
+    for scene in SCENES:
+        scene_dir = scenes_dir / scene
+        if not (scene_dir / "reference.png").is_file() or not (scene_dir / "world_to_pixel.txt").is_file():
+            missing.append(scene)
+            continue
+        raster, transform, warped = build_scene(scene_dir, cfg)
+        np.save(out_dir / map_file(scene), raster)
+        _check_figure(scene, scene_dir, raster, warped, transform, out_dir / map_check_file(scene))
+        transforms[scene] = transform
+    (out_dir / MAPS_TRANSFORMS_FILE).write_text(
+        json.dumps({"scenes": transforms, "channels": channel_names(cfg)}, indent=2)
+    )
+    return {
+        "scenes": transforms,
+        "channels": channel_names(cfg),
+        "without_geometry": missing,
+        "warnings": [f"scene {s}: no reference.png + world_to_pixel.txt; its crops have no map" for s in missing],
+    }

@@ -1,0 +1,5 @@
+"""Neural network modules: plain torch, configured by keyword, no I/O."""
+
+from fftool.models.goal_unet import GoalUNet
+
+__all__ = ["GoalUNet"]
