@@ -19,9 +19,9 @@ def calls(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     spied = {}
     for name, stage in pipeline.STAGES.items():
 
-        def spy(cfg, inputs, ctx, runtime, _build=stage.build, _name=name):
+        def spy(cfg, inputs, ctx, runtime, benchmark, _build=stage.build, _name=name):
             record.append(_name)
-            return _build(cfg, inputs, ctx, runtime)
+            return _build(cfg, inputs, ctx, runtime, benchmark)
 
         spied[name] = dataclasses.replace(stage, build=spy)
     monkeypatch.setattr(pipeline, "STAGES", spied)

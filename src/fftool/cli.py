@@ -195,6 +195,101 @@ def maps(
     out_console.print(maps_table(built["maps"]))
 
 
+def _check_benchmark(value: str) -> str:
+    from fftool.scenes import BENCHMARKS
+
+    if value not in BENCHMARKS:
+        raise typer.BadParameter(f"{value!r} is not one of {', '.join(BENCHMARKS)}")
+    return value
+
+
+def _check_benchmarks(value: str) -> str:
+    from fftool.scenes import BENCHMARKS
+
+    names = BENCHMARKS if value == "all" else tuple(v.strip() for v in value.split(","))
+    unknown = [name for name in names if name not in BENCHMARKS]
+    if unknown:
+        raise typer.BadParameter(
+            f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(BENCHMARKS)} or all"
+        )
+    return ",".join(names)
+
+
+BenchmarkOption = Annotated[
+    str,
+    typer.Option(
+        "--benchmark", "-b", help="Leave-one-out benchmark: eth, hotel, univ, zara1, zara2.", callback=_check_benchmark
+    ),
+]
+BenchmarksOption = Annotated[
+    str, typer.Option("--benchmarks", help="Comma-separated benchmarks, or all.", callback=_check_benchmarks)
+]
+
+
+@app.command("train-goal", epilog="Example: fftool train-goal --benchmark zara1 --config pipelines/quick.toml")
+@_boundary
+def train_goal(
+    benchmark: BenchmarkOption = "zara1",
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Train the U-Net goal estimator on a benchmark's train part (resumable; best epoch by val goal-FDE)."""
+    from fftool import pipeline
+    from fftool.config import load_config
+    from fftool.reports import goal_training_table
+    from fftool.ui import out_console
+
+    cfg = load_config(config, list(set_ or []))
+    built = pipeline.run(
+        cfg,
+        _store(root),
+        ["goal"],
+        force=["goal"] if force else [],
+        runtime=pipeline.Runtime(device=device),
+        upstream=False,
+        benchmark=benchmark,
+    )
+    out_console.print(goal_training_table(built["goal"]))
+
+
+@app.command(
+    "sample-goals", epilog="Example: fftool sample-goals --benchmarks zara1,zara2 --config pipelines/quick.toml"
+)
+@_boundary
+def sample_goals(
+    benchmarks: BenchmarksOption = "all",
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Sample K goals per agent-window with trained goal U-Nets; table of goal-FDE@K vs anchors and CV."""
+    from fftool import pipeline
+    from fftool.config import load_config
+    from fftool.reports import goal_fde_table
+    from fftool.ui import out_console
+
+    cfg = load_config(config, list(set_ or []))
+    store = _store(root)
+    artifacts = {}
+    for benchmark in benchmarks.split(","):
+        built = pipeline.run(
+            cfg,
+            store,
+            ["goals"],
+            force=["goals"] if force else [],
+            runtime=pipeline.Runtime(device=device),
+            upstream=False,
+            benchmark=benchmark,
+        )
+        artifacts[benchmark] = built["goals"]
+    out_console.print(goal_fde_table(artifacts))
+
+
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")
 @_boundary
 def fetch_data(

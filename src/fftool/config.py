@@ -136,6 +136,10 @@ class GoalsConfig(_Section):
     samples: int = Field(2000, gt=0)  # draws per agent clustered by k-means (Goal-SAR: 10,000)
     kmeans_iterations: int = Field(20, gt=0)
     parts: tuple[Literal["train", "val", "test"], ...] = ("val", "test")
+    # The constant-velocity reference: the last observed velocity extrapolated to the last step, and
+    # K - 1 more goals with the heading and speed perturbed by these standard deviations.
+    cv_angle_std_deg: float = Field(15.0, ge=0)
+    cv_speed_std: float = Field(0.2, ge=0)
     seed: int = 0
 
 

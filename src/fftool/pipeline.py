@@ -2,7 +2,8 @@
 
     raw ETH/UCY txt ──▶ tracks ──▶ windows ──▶ forces
                           └──────────────────────▲
-    scene images + homographies ──▶ maps
+    scene images + homographies ──▶ maps ──▶ goal (per benchmark) ──▶ goals (per benchmark)
+                                   windows ──┘
 
 Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
 fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
@@ -19,10 +20,11 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from fftool import forces, ingest, maps, windows
+from fftool import forces, goal, goals, ingest, maps, windows
 from fftool.config import PipelineConfig
 from fftool.errors import FftoolError
 from fftool.hashing import fingerprint
+from fftool.scenes import BENCHMARKS
 from fftool.store import Artifact, ArtifactStore, BuildContext, check_schema
 from fftool.ui import log, progress, warn
 
@@ -43,7 +45,7 @@ class Runtime:
         return torch.device(self.device)
 
 
-Builder = Callable[[PipelineConfig, Mapping[str, Artifact], BuildContext, Runtime], dict[str, Any]]
+Builder = Callable[[PipelineConfig, Mapping[str, Artifact], BuildContext, Runtime, "str | None"], dict[str, Any]]
 
 
 @dataclass(frozen=True)
@@ -57,10 +59,11 @@ class Stage:
     section: Callable[[PipelineConfig], BaseModel]
     build: Builder
     external_inputs: Callable[[PipelineConfig], dict[str, str]] = lambda cfg: {}
+    per_benchmark: bool = False  # one artifact per leave-one-out benchmark (the benchmark is a parameter)
 
 
 def _build_tracks(
-    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     raw_dir = Path(cfg.data.raw_dir)
     with progress() as bar:
@@ -72,13 +75,13 @@ def _build_tracks(
 
 
 def _build_windows(
-    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     return windows.build(cfg.windows, inputs["tracks"], ctx.dir)
 
 
 def _build_forces(
-    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     files = {source for row in inputs["windows"].manifest.stats["summary"] for source in row["sources"]}
     with progress() as bar:
@@ -95,12 +98,53 @@ def _build_forces(
 
 
 def _build_maps(
-    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     stats = maps.build(cfg.maps, Path(cfg.data.scenes_dir), ctx.dir)
     for message in stats["warnings"]:
         warn(message)
     return stats
+
+
+def _bar_callback(bar: Any, task: Any) -> Callable[[str, int, int], None]:
+    return lambda phase, done, total: bar.update(task, completed=done, total=total, description=phase)
+
+
+def _build_goal(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
+) -> dict[str, Any]:
+    assert benchmark is not None
+    with progress() as bar:
+        task = bar.add_task(f"train goal U-Net ({benchmark})", total=None)
+        return goal.build(
+            cfg.goal,
+            cfg.goals,
+            benchmark,
+            inputs["windows"],
+            inputs["maps"],
+            ctx.dir,
+            ctx.scratch,
+            runtime.torch_device(),
+            on_progress=_bar_callback(bar, task),
+        )
+
+
+def _build_goals(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
+) -> dict[str, Any]:
+    assert benchmark is not None
+    with progress() as bar:
+        task = bar.add_task(f"sample goals ({benchmark})", total=None)
+        return goals.build(
+            cfg.goals,
+            benchmark,
+            inputs["goal"],
+            inputs["windows"],
+            inputs["maps"],
+            ctx.dir,
+            runtime.torch_device(),
+            on_progress=_bar_callback(bar, task),
+        )
 
 
 STAGES: dict[str, Stage] = {
@@ -125,6 +169,24 @@ STAGES: dict[str, Stage] = {
             lambda cfg: cfg.maps,
             _build_maps,
             lambda cfg: maps.scene_input_hashes(Path(cfg.data.scenes_dir)),
+        ),
+        Stage(
+            goal.NAME,
+            goal.VERSION,
+            goal.INPUTS,
+            "fftool train-goal",
+            lambda cfg: cfg.goal,
+            _build_goal,
+            per_benchmark=True,
+        ),
+        Stage(
+            goals.NAME,
+            goals.VERSION,
+            goals.INPUTS,
+            "fftool sample-goals",
+            lambda cfg: cfg.goals,
+            _build_goals,
+            per_benchmark=True,
         ),
     )
 }
@@ -158,11 +220,15 @@ class Resolved:
     fingerprint: str
 
 
-def resolve(cfg: PipelineConfig, targets: Iterable[str]) -> list[Resolved]:
+def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None = None) -> list[Resolved]:
     """Plan `targets` and fingerprint each stage; upstream fingerprints chain into downstream ones."""
     resolved: dict[str, Resolved] = {}
     for stage in plan(targets):
         params = stage.section(cfg).model_dump(mode="json")
+        if stage.per_benchmark:
+            if benchmark not in BENCHMARKS:
+                raise FftoolError(f"stage {stage.name!r} needs a benchmark, one of {', '.join(BENCHMARKS)}")
+            params["benchmark"] = benchmark
         inputs = {name: resolved[name].fingerprint for name in stage.inputs} | stage.external_inputs(cfg)
         resolved[stage.name] = Resolved(stage, params, inputs, fingerprint(stage.name, stage.version, params, inputs))
     return list(resolved.values())
@@ -175,6 +241,7 @@ def run(
     force: Iterable[str] = (),
     runtime: Runtime | None = None,
     upstream: bool = True,
+    benchmark: str | None = None,
 ) -> dict[str, Artifact]:
     """Build what is missing for `targets` (and rebuild the stages named in `force`).
 
@@ -183,7 +250,7 @@ def run(
     """
     forced, targets = set(force), list(targets)
     built: dict[str, Artifact] = {}
-    for item in resolve(cfg, targets):
+    for item in resolve(cfg, targets, benchmark):
         stage, fp = item.stage, item.fingerprint
         if not upstream and stage.name not in targets:
             built[stage.name] = store.require(stage.name, fp, stage.version, stage.command)
@@ -196,7 +263,8 @@ def run(
             continue
         log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
         with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
-            ctx.stats = stage.build(cfg, {name: built[name] for name in stage.inputs}, ctx, runtime or Runtime())
+            inputs = {name: built[name] for name in stage.inputs}
+            ctx.stats = stage.build(cfg, inputs, ctx, runtime or Runtime(), benchmark)
         assert ctx.artifact is not None
         log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
         built[stage.name] = ctx.artifact

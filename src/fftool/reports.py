@@ -118,3 +118,59 @@ def maps_table(maps: Artifact) -> Table:
     table.caption = f"channels: {', '.join(stats['channels'])}"
     table.caption_justify = "left"
     return table
+
+
+def goal_training_table(goal: Artifact) -> Table:
+    """One row per epoch of a goal U-Net training: loss terms and validation goal-FDE."""
+    stats = goal.manifest.stats
+    table = Table(
+        title=f"goal U-Net, {stats['benchmark']} ({goal.id}, {stats['device']})",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+    )
+    rows = stats["log"]
+    for name in rows[0] if rows else []:
+        table.add_column(name, justify="right", no_wrap=True)
+    for row in rows:
+        best = row["epoch"] == stats["best_epoch"]
+        table.add_row(
+            *(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()), style="bold" if best else None
+        )
+    table.caption = (
+        f"best epoch {stats['best_epoch']} (bold) kept; {stats['train_per_epoch']:,} of "
+        f"{stats['train_agent_windows']:,} train agent-windows per epoch, {stats['val_agent_windows']:,} val agent-windows"
+    )
+    table.caption_justify = "left"
+    return table
+
+
+def goal_fde_table(goals: dict[str, Artifact]) -> Table:
+    """Test goal-FDE@K per benchmark beside the constant-velocity reference and the published anchors."""
+    from fftool.goals import ANCHORS
+
+    first = next(iter(goals.values())).manifest.stats
+    k = first["k"]
+    table = Table(title=f"goal module alone: test goal-FDE (m), K = {k}", title_justify="left", box=box.SIMPLE_HEAD)
+    names = (f"ours @{k}", "ours @1 (mode)", f"CV @{k}", "CV @1", "Y-net @20", "Goal-SAR @20", "agent-windows")
+    table.add_column("benchmark", no_wrap=True)
+    for name in names:
+        table.add_column(name, justify="right", no_wrap=True)
+    values = []
+    for benchmark, artifact in goals.items():
+        test = artifact.manifest.stats["parts"]["test"]
+        row = [test[f"goal_fde@{k}_m"], test["goal_fde@1_m"], test[f"cv_fde@{k}_m"], test["cv_fde@1_m"]]
+        values.append(row)
+        anchors = [ANCHORS[name][benchmark] for name in ("Y-net", "Goal-SAR")]
+        table.add_row(
+            benchmark, *(f"{v:.3f}" for v in row), *(f"{v:.2f}" for v in anchors), f"{test['agent_windows']:,}"
+        )
+    if len(goals) == 5:
+        means = [sum(col) / 5 for col in zip(*values)]
+        table.add_section()
+        table.add_row("average", *(f"{v:.3f}" for v in means), "0.27", "0.29", "")
+    table.caption = (
+        "FDE@K = min over the K goals of the distance to the true final position; CV: constant-velocity "
+        f"extrapolation (@1) and {k} heading/speed perturbations of it; anchors: published goal-module FDE@20"
+    )
+    table.caption_justify = "left"
+    return table

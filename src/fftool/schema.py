@@ -91,3 +91,16 @@ def map_file(scene: str) -> str:
 
 def map_check_file(scene: str) -> str:
     return f"{scene}_check.png"
+
+
+# --- goals artifact -------------------------------------------------------------------------------
+# goals.npy (M, K, 2) float32 world goals, the goal map's mode first; row i belongs to row i of
+# index.parquet (benchmark, part, window_id, ped_id), which follows agent_windows.parquet order
+# within each part. cv_goals.npy: the constant-velocity reference, same layout.
+GOALS_INDEX_FILE: Final = "index.parquet"
+GOALS_FILE: Final = "goals.npy"
+CV_GOALS_FILE: Final = "cv_goals.npy"
+
+# --- goal artifact (a trained goal U-Net) -------------------------------------------------------------
+GOAL_MODEL_FILE: Final = "model.pt"  # {"state_dict", "in_channels", "config", "benchmark", "best_epoch"}
+GOAL_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term and the validation goal-FDE

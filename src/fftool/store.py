@@ -25,6 +25,7 @@ from fftool.hashing import sha256_file
 
 MANIFEST = "manifest.json"
 _INCOMPLETE = ".incomplete"
+_SCRATCH = ".scratch"  # survives failed builds: resumable training checkpoints live here
 _FP_DIR_LEN = 16
 ENV_ROOT = "FFTOOL_ARTIFACTS"
 
@@ -244,7 +245,7 @@ class ArtifactStore:
         tmp = self.root / _INCOMPLETE / f"{kind}-{fp[:_FP_DIR_LEN]}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
-        ctx = BuildContext(dir=tmp)
+        ctx = BuildContext(dir=tmp, scratch=self.root / _SCRATCH / f"{kind}-{fp[:_FP_DIR_LEN]}")
         try:
             yield ctx
             manifest = Manifest(
@@ -260,6 +261,8 @@ class ArtifactStore:
             )
             (tmp / MANIFEST).write_text(manifest.to_json())
             self._install(tmp, self.path_for(kind, fp))
+            shutil.rmtree(ctx.scratch, ignore_errors=True)
+            _remove_empty(ctx.scratch.parent)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
             _remove_empty(tmp.parent)
@@ -280,9 +283,10 @@ class ArtifactStore:
 
 @dataclass
 class BuildContext:
-    """What a build writes into (`dir`) and reports (`stats`); `artifact` is set once installed."""
+    """What a build writes into (`dir`), keeps across attempts (`scratch`) and reports (`stats`)."""
 
     dir: Path
+    scratch: Path  # kept when a build fails (resume state); removed once the artifact is installed
     stats: dict[str, Any] = field(default_factory=dict)
     artifact: Artifact | None = None
 

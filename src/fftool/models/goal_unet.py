@@ -25,7 +25,9 @@ def _double_conv(c_in: int, c_out: int) -> nn.Sequential:
 class GoalUNet(nn.Module):
     """(B, C_in, H, W) -> (B, H, W) goal logits."""
 
-    def __init__(self, *, in_channels: int, widths: tuple[int, ...] = (32, 32, 64, 64, 64)) -> None:
+    def __init__(
+        self, *, in_channels: int, widths: tuple[int, ...] = (32, 32, 64, 64, 64), prior_logit: float = 0.0
+    ) -> None:
         super().__init__()
         assert len(widths) >= 2, f"a U-Net needs at least two levels, got widths {widths}"
         self.depth = len(widths) - 1
@@ -40,6 +42,9 @@ class GoalUNet(nn.Module):
             self.decoder.append(_double_conv(2 * skip_width, skip_width))
             previous = skip_width
         self.head = nn.Conv2d(previous, 1, 1)
+        # Start every cell at the target's prior probability instead of 0.5, so the first steps are spent
+        # on finding the goal rather than on pushing thousands of background cells down.
+        nn.init.constant_(self.head.bias, prior_logit)
 
     def forward(self, x: Tensor) -> Tensor:
         B, C, H, W = x.shape  # (B, C, H, W) batch, channels, rows, cols

@@ -1,0 +1,126 @@
+"""The goal estimator as functions: network inputs, loss, goal sampling, and loading a trained model.
+
+Shared by the `goal` (training) and `goals` (sampling) stages, which never import each other.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from fftool.batches import AgentWindows, SceneMaps
+from fftool.config import GoalConfig, GoalsConfig
+from fftool.heatmaps import (
+    cells_to_world,
+    gaussian_target,
+    render,
+    rotation,
+    sample_goals,
+    sample_scene,
+    softargmax,
+    world_to_cells,
+)
+from fftool.models import GoalUNet
+from fftool.schema import GOAL_MODEL_FILE
+from fftool.store import Artifact
+from fftool.training import generator
+
+
+def goal_inputs(
+    obs: Tensor, scene: Tensor, maps: SceneMaps, cfg: GoalConfig, angle: Tensor, mirror: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(B, 8 + C, S, S) network input, crop centres (B, 2) and crop rotations (B, 2, 2)."""
+    S, res = cfg.crop_cells, cfg.resolution_m
+    center, R = obs[:, -1], rotation(angle, mirror)
+    heat = render(world_to_cells(obs, center, R, res, S), S, cfg.heatmap_sigma_cells)  # (B, 8, S, S)
+    crop = sample_scene(maps.stack, maps.origins, maps.resolution_m, scene, center, R, res, S)  # (B, C, S, S)
+    return torch.cat([heat, crop.to(heat.dtype)], dim=1), center, R
+
+
+def goal_loss(logits: Tensor, goal_cells: Tensor, cfg: GoalConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """total, BCE (mean over cells) and MSE (cells², softargmax vs true goal) with λ on one of them."""
+    target = gaussian_target(goal_cells, cfg.crop_cells, cfg.heatmap_sigma_cells)
+    bce = F.binary_cross_entropy_with_logits(logits, target)
+    reachable = goal_cells.clamp(0, cfg.crop_cells - 1)  # a goal outside the crop pulls to its border
+    mse = ((softargmax(logits) - reachable) ** 2).sum(-1).mean()
+    total = cfg.loss_lambda * bce + mse if cfg.lambda_scales == "bce" else bce + cfg.loss_lambda * mse
+    return total, bce, mse
+
+
+def build_model(cfg: GoalConfig, in_channels: int) -> GoalUNet:
+    multiple = 2 ** (len(cfg.widths) - 1)
+    assert cfg.crop_cells % multiple == 0, f"crop_cells {cfg.crop_cells} must be divisible by {multiple}"
+    target_share = 2 * math.pi * cfg.heatmap_sigma_cells**2 / cfg.crop_cells**2  # mass of the target map
+    return GoalUNet(
+        in_channels=in_channels, widths=tuple(cfg.widths), prior_logit=math.log(target_share / (1 - target_share))
+    )
+
+
+@torch.no_grad()
+def predict_goals(
+    model: GoalUNet,
+    obs: Tensor,
+    scene: Tensor,
+    maps: SceneMaps,
+    cfg: GoalConfig,
+    goals_cfg: GoalsConfig,
+    gen: torch.Generator,
+) -> Tensor:
+    """(B, K, 2) world goals, the map's mode first, for observed paths (B, 8, 2)."""
+    zeros = torch.zeros(len(obs), device=obs.device)
+    x, center, R = goal_inputs(obs, scene, maps, cfg, zeros, zeros.bool())
+    logits = model(x)
+    cells = sample_goals(
+        logits,
+        goals_cfg.k,
+        method=goals_cfg.method,
+        temperature=goals_cfg.temperature,
+        threshold=goals_cfg.threshold,
+        samples=goals_cfg.samples,
+        iterations=goals_cfg.kmeans_iterations,
+        generator=gen,
+    )
+    return cells_to_world(cells, center, R, cfg.resolution_m, cfg.crop_cells)
+
+
+def goal_fde(goals: Tensor, truth: Tensor) -> tuple[Tensor, Tensor]:
+    """Per agent: min over K of ‖goal_k − truth‖ (FDE@K) and the mode's error (FDE@1), metres."""
+    errors = torch.linalg.vector_norm(goals - truth[:, None, :], dim=-1)  # (B, K)
+    return errors.min(-1).values, errors[:, 0]
+
+
+def evaluate(
+    model: GoalUNet,
+    data: AgentWindows,
+    scene: Tensor,
+    maps: SceneMaps,
+    cfg: GoalConfig,
+    goals_cfg: GoalsConfig,
+    device: torch.device,
+    seed: int,
+    obs_len: int,
+) -> tuple[float, float]:
+    """Mean goal-FDE@K and FDE@1 over `data` (no augmentation, fixed sampling seed)."""
+    model.eval()
+    gen = generator(seed, device)
+    fde_k, fde_1 = [], []
+    for start in range(0, len(data), cfg.batch_size * 4):
+        index = slice(start, start + cfg.batch_size * 4)
+        xy = torch.as_tensor(data.xy[index], dtype=torch.float32, device=device)
+        goals = predict_goals(model, xy[:, :obs_len], scene[index].to(device), maps, cfg, goals_cfg, gen)
+        k, one = goal_fde(goals, xy[:, -1])
+        fde_k.append(k)
+        fde_1.append(one)
+    return float(torch.cat(fde_k).mean()), float(torch.cat(fde_1).mean())
+
+
+def load_model(goal: Artifact, device: torch.device) -> tuple[GoalUNet, GoalConfig]:
+    """Rebuild the trained U-Net from its artifact alone."""
+    saved = torch.load(goal.file(GOAL_MODEL_FILE), map_location=device, weights_only=True)
+    cfg = GoalConfig.model_validate(saved["config"])
+    model = build_model(cfg, saved["in_channels"]).to(device)
+    model.load_state_dict(saved["state_dict"])
+    return model.eval(), cfg

@@ -1,0 +1,113 @@
+"""Sample K goals per valid agent-window from a trained goal U-Net, and score the goal module alone.
+
+Reads: goal (the model), windows, maps. Writes: `goals/<fp>/goals.npy` (M, K, 2), `cv_goals.npy`
+(the constant-velocity reference, same layout) and index.parquet. Run:
+`fftool sample-goals --benchmark zara1`. The manifest holds goal-FDE@K and FDE@1 per part for both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import torch
+from torch import Tensor
+
+from fftool.batches import load_agent_windows, load_scene_maps
+from fftool.config import GoalsConfig
+from fftool.goalnet import goal_fde, load_model, predict_goals
+from fftool.schema import CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE
+from fftool.store import Artifact
+from fftool.training import generator
+
+NAME: Final = "goals"
+VERSION: Final = 1
+INPUTS: Final = ("goal", "windows", "maps")
+# Published goal-module FDE@20 (m) on ETH/UCY, research/goal_module.md §5.3.
+ANCHORS: Final = {
+    "Y-net": {"eth": 0.33, "hotel": 0.14, "univ": 0.41, "zara1": 0.27, "zara2": 0.22, "average": 0.27},
+    "Goal-SAR": {"eth": 0.39, "hotel": 0.17, "univ": 0.43, "zara1": 0.26, "zara2": 0.22, "average": 0.29},
+}
+
+
+def constant_velocity_goals(obs: Tensor, pred_len: int, k: int, cfg: GoalsConfig, gen: torch.Generator) -> Tensor:
+    """(B, K, 2): the last velocity extrapolated pred_len steps, then K - 1 perturbed copies."""
+    velocity = obs[:, -1] - obs[:, -2]  # per step
+    B = len(obs)
+    angle = torch.randn(B, k, generator=gen, device=obs.device) * math.radians(cfg.cv_angle_std_deg)
+    speed = 1 + torch.randn(B, k, generator=gen, device=obs.device) * cfg.cv_speed_std
+    angle[:, 0], speed[:, 0] = 0.0, 1.0  # the plain extrapolation first
+    cos, sin = torch.cos(angle), torch.sin(angle)
+    vx, vy = velocity[:, None, 0], velocity[:, None, 1]
+    turned = torch.stack([cos * vx - sin * vy, sin * vx + cos * vy], -1)  # (B, K, 2)
+    return obs[:, None, -1] + pred_len * speed.clamp_min(0)[..., None] * turned
+
+
+def build(
+    cfg: GoalsConfig,
+    benchmark: str,
+    goal: Artifact,
+    windows: Artifact,
+    maps: Artifact,
+    out_dir: Path,
+    device: torch.device,
+    on_progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Goals for every valid agent-window of the configured parts; FDE of the module and the CV reference.
+
+    Args:
+        cfg: the `goals` section. benchmark: whose parts to sample.
+        goal, windows, maps: input artifacts. out_dir: the build folder.
+        device: torch device. on_progress: called with (part, done, total).
+    """
+    model, goal_cfg = load_model(goal, device)
+    scene_maps = load_scene_maps(maps).to(device)
+    obs_len = int(windows.manifest.stats["obs_len"])
+    pred_len = int(windows.manifest.stats["pred_len"])
+    gen = generator(cfg.seed, device)
+    all_goals, all_cv, index, parts = [], [], [], {}
+    for part in cfg.parts:
+        data = load_agent_windows(windows, benchmark, part)
+        scene = scene_maps.index_of_sources(data.source)
+        batch = 256
+        fde = {"goal_k": [], "goal_1": [], "cv_1": [], "cv_k": []}
+        for start in range(0, len(data), batch):
+            xy = torch.as_tensor(data.xy[start : start + batch], dtype=torch.float32, device=device)
+            obs, truth = xy[:, :obs_len], xy[:, -1]
+            goals = predict_goals(model, obs, scene[start : start + batch].to(device), scene_maps, goal_cfg, cfg, gen)
+            cv = constant_velocity_goals(obs, pred_len, cfg.k, cfg, gen)
+            for prefix, values in (("goal", goals), ("cv", cv)):
+                k, one = goal_fde(values, truth)
+                fde[f"{prefix}_k"].append(k)
+                fde[f"{prefix}_1"].append(one)
+            all_goals.append(goals.cpu().numpy())
+            all_cv.append(cv.cpu().numpy())
+            if on_progress:
+                on_progress(part, min(start + batch, len(data)), len(data))
+        index.append(
+            pa.table(
+                {
+                    "benchmark": [benchmark] * len(data),
+                    "part": [part] * len(data),
+                    "window_id": data.window_id,
+                    "ped_id": data.ped_id,
+                }
+            )
+        )
+        means = {name: float(torch.cat(values).mean()) if values else float("nan") for name, values in fde.items()}
+        parts[part] = {
+            "agent_windows": len(data),
+            f"goal_fde@{cfg.k}_m": means["goal_k"],
+            "goal_fde@1_m": means["goal_1"],
+            "cv_fde@1_m": means["cv_1"],
+            f"cv_fde@{cfg.k}_m": means["cv_k"],
+        }
+    np.save(out_dir / GOALS_FILE, np.concatenate(all_goals).astype(np.float32))
+    np.save(out_dir / CV_GOALS_FILE, np.concatenate(all_cv).astype(np.float32))
+    pq.write_table(pa.concat_tables(index), out_dir / GOALS_INDEX_FILE)
+    return {"benchmark": benchmark, "k": cfg.k, "method": cfg.method, "device": str(device), "parts": parts}
