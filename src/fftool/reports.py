@@ -138,7 +138,8 @@ def goal_training_table(goal: Artifact) -> Table:
         )
     table.caption = (
         f"best epoch {stats['best_epoch']} (bold) kept; {stats['train_per_epoch']:,} of "
-        f"{stats['train_agent_windows']:,} train agent-windows per epoch, {stats['val_agent_windows']:,} val agent-windows"
+        f"{stats['train_agent_windows']:,} train agent-windows per epoch, "
+        f"{stats['val_agent_windows']:,} val agent-windows"
     )
     table.caption_justify = "left"
     return table
