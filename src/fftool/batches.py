@@ -58,7 +58,7 @@ def load_agent_windows(windows: Artifact, benchmark: str, part: str, stride: int
     rows = rows[keep]
     xy_column = pq.read_table(windows.file(AGENT_WINDOWS_FILE), columns=["xy"]).column("xy").take(rows)
     window_len = int(windows.manifest.stats["window_len"])
-    xy = xy_column.combine_chunks().flatten().to_numpy().reshape(len(rows), window_len, 2)
+    xy = xy_column.combine_chunks().flatten().to_numpy().reshape(len(rows), window_len, 2).copy()  # writable
     return AgentWindows(
         xy=xy,
         source=source[keep],

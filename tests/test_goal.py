@@ -1,0 +1,108 @@
+"""Goal U-Net training on a tiny synthetic benchmark: learning, resuming, sampling, the CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from fftool import goal, pipeline
+from fftool.cli import app
+from fftool.config import GoalConfig, GoalsConfig, load_config
+from fftool.store import ArtifactStore
+
+from .test_maps import make_scene
+
+TINY = GoalConfig(
+    resolution_m=0.5, crop_cells=16, widths=(4, 8, 8), epochs=4, batch_size=16, lr=3e-3, train_stride=1, val_max=0
+)
+SAMPLING = GoalsConfig(k=5, samples=200, kmeans_iterations=5)
+
+
+@pytest.fixture
+def inputs(raw_tree: Path, tmp_path: Path) -> dict:
+    make_scene(tmp_path / "scenes" / "zara1")
+    cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}", f"data.scenes_dir={str(tmp_path / 'scenes')!r}"])
+    store = ArtifactStore(tmp_path / "artifacts")
+    built = pipeline.run(cfg, store, ["windows", "maps"])
+    return {"windows": built["windows"], "maps": built["maps"]}
+
+
+def _train(inputs: dict, tmp_path: Path, name: str, cfg: GoalConfig = TINY, on_progress=None) -> dict:
+    out = tmp_path / name
+    out.mkdir(exist_ok=True)
+    return goal.build(
+        cfg,
+        SAMPLING,
+        "zara1",
+        inputs["windows"],
+        inputs["maps"],
+        out,
+        tmp_path / "scratch",
+        torch.device("cpu"),
+        on_progress,
+    )
+
+
+def test_loss_decreases_and_the_best_model_reloads(inputs: dict, tmp_path: Path) -> None:
+    stats = _train(inputs, tmp_path, "run")
+    losses = [row["train_loss"] for row in stats["log"]]
+    assert losses[-1] < losses[0]
+    assert stats["train_agent_windows"] > 100 and stats["val_agent_windows"] > 10
+    assert 1 <= stats["best_epoch"] <= 4
+    saved = torch.load(tmp_path / "run" / "model.pt", weights_only=True)
+    assert saved["config"]["crop_cells"] == 16 and saved["in_channels"] == 8 + 6
+    assert (tmp_path / "run" / "log.csv").read_text().startswith("epoch,seconds,train_loss")
+
+
+def test_an_interrupted_run_resumes_and_ends_like_an_uninterrupted_one(inputs: dict, tmp_path: Path) -> None:
+    reference = _train(inputs, tmp_path, "reference", TINY.model_copy(update={"epochs": 3}))
+    (tmp_path / "scratch" / "last.pt").unlink()  # a fresh start for the interrupted run
+
+    def interrupt(phase: str, done: int, total: int) -> None:
+        if phase.startswith("epoch 3/") and done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _train(inputs, tmp_path, "interrupted", TINY.model_copy(update={"epochs": 3}), on_progress=interrupt)
+    assert torch.load(tmp_path / "scratch" / "last.pt", weights_only=True)["epoch"] == 1  # epochs 1-2 saved
+    resumed = _train(inputs, tmp_path, "resumed", TINY.model_copy(update={"epochs": 3}))
+    assert resumed["resumed_from_epoch"] == 2
+    for a, b in zip(reference["log"], resumed["log"]):
+        assert a["train_loss"] == pytest.approx(b["train_loss"], rel=1e-6)
+    ref = torch.load(tmp_path / "reference" / "model.pt", weights_only=True)["state_dict"]
+    res = torch.load(tmp_path / "resumed" / "model.pt", weights_only=True)["state_dict"]
+    for key in ref:
+        torch.testing.assert_close(ref[key], res[key])
+
+
+def test_the_cli_trains_samples_and_prints_the_tables(raw_tree: Path, tmp_path: Path) -> None:
+    make_scene(tmp_path / "scenes" / "zara1")
+    root = str(tmp_path / "artifacts")
+    common = [
+        "--root",
+        root,
+        "--set",
+        f"data.raw_dir={str(raw_tree)!r}",
+        "--set",
+        f"data.scenes_dir={str(tmp_path / 'scenes')!r}",
+    ]
+    tiny = ["--set", "goal.crop_cells=16", "--set", "goal.widths=[4, 8, 8]", "--set", "goal.epochs=1"]
+    tiny += ["--set", "goal.resolution_m=0.5", "--set", "goals.samples=100"]
+    runner = CliRunner()
+    missing = runner.invoke(app, ["train-goal", "-b", "zara1", *common, *tiny])
+    assert missing.exit_code == 1 and "run `fftool ingest` first" in missing.output
+    assert runner.invoke(app, ["ingest", *common]).exit_code == 0
+    assert runner.invoke(app, ["maps", *common]).exit_code == 0
+    trained = runner.invoke(app, ["train-goal", "-b", "zara1", *common, *tiny, "--device", "cpu"])
+    assert trained.exit_code == 0, trained.output
+    assert "val_goal_fde@20_m" in trained.output
+    sampled = runner.invoke(app, ["sample-goals", "--benchmarks", "zara1", *common, *tiny])
+    assert sampled.exit_code == 0, sampled.output
+    assert "goal module alone" in sampled.output and "Goal-SAR" in sampled.output
+    goals = np.load(next((Path(root) / "goals").iterdir()) / "goals.npy")
+    assert goals.shape[1:] == (20, 2) and np.isfinite(goals).all()
+    assert runner.invoke(app, ["train-goal", "-b", "atlantis", *common]).exit_code == 2
