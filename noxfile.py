@@ -19,14 +19,22 @@ CONSTRAINTS = ("-c", "constraints.txt")
 
 @nox.session
 def main(session: nox.Session) -> None:
-    """The end-to-end job on the real data: fetch it if it is not beside the checkout, ingest, forces."""
+    """The end-to-end job on the real data with the quick profile (minutes on a laptop CPU).
+
+    Fetches the raw files if they are not beside the checkout, then: ingest, social forces, scene maps,
+    the goal U-Net for zara1 and its goal samples with the goal-FDE table.
+    """
     session.install(*CONSTRAINTS, "-e", ".")
     raw = SHARED_RAW
     if not raw.is_dir():
         raw = Path("data/eth_ucy/raw")
         session.run("fftool", "fetch-data", "--dest", str(raw))
-    session.run("fftool", "ingest", "--raw", str(raw), *session.posargs)
-    session.run("fftool", "forces", "--set", f"data.raw_dir={str(raw)!r}", *session.posargs)
+    profile = ("-c", "pipelines/quick.toml", "--set", f"data.raw_dir={str(raw)!r}")
+    session.run("fftool", "ingest", *profile)
+    session.run("fftool", "forces", *profile)
+    session.run("fftool", "maps", *profile)
+    session.run("fftool", "train-goal", "--benchmark", "zara1", *profile)
+    session.run("fftool", "sample-goals", "--benchmarks", "zara1", *profile)
 
 
 @nox.session

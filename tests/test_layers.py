@@ -9,7 +9,7 @@ import fftool
 
 PACKAGE = Path(fftool.__file__).parent
 LEAVES = {"errors", "scenes", "hashing", "ui", "groups"}
-STAGE_MODULES = {"ingest", "windows", "forces"}
+STAGE_MODULES = {"ingest", "windows", "forces", "maps", "goal", "goals"}
 ORCHESTRATION = {"pipeline", "cli", "__main__"}
 
 

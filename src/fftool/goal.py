@@ -39,6 +39,7 @@ def build(
     scratch: Path,
     device: torch.device,
     on_progress: Callable[[str, int, int], None] | None = None,
+    on_epoch: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Train, validating every epoch; write the best model and the log. Returns the manifest stats.
 
@@ -47,7 +48,8 @@ def build(
         benchmark: the leave-one-out benchmark whose train part is used.
         windows, maps: input artifacts. out_dir: the build folder.
         scratch: where the resumable checkpoint lives (kept if this build fails).
-        device: torch device. on_progress: called with (phase, done, total).
+        device: torch device. on_progress: called with (phase, done, total) after every batch.
+        on_epoch: called with each epoch's log row (a line per epoch even where no live bar shows).
     """
     seed_all(cfg.seed)
     obs_len = int(windows.manifest.stats["obs_len"])
@@ -112,6 +114,8 @@ def build(
                 "val_goal_fde@1_m": fde_1,
             }
         )
+        if on_epoch:
+            on_epoch(log[-1])
         if fde_k < best["fde"]:
             best = {
                 "fde": fde_k,

@@ -126,6 +126,9 @@ def _build_goal(
             ctx.scratch,
             runtime.torch_device(),
             on_progress=_bar_callback(bar, task),
+            on_epoch=lambda row: bar.console.print(
+                "  " + "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items())
+            ),
         )
 
 
