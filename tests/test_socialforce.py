@@ -25,7 +25,15 @@ from fftool.socialforce import (
 )
 
 CFG = ForcesConfig()
-torch.set_default_dtype(torch.float64)
+
+
+@pytest.fixture(autouse=True)
+def float64_by_default():
+    """These checks compare to 1e-6 and 1e-12: float64, restored afterwards so no other test is affected."""
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    yield
+    torch.set_default_dtype(previous)
 
 
 def _hand_pair_force(ra, rb, vb, gb, v0=2.1, sigma=0.3, dt=0.4):

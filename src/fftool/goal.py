@@ -84,11 +84,10 @@ def build(
         for b in range(batches):
             index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
             xy = train_xy[index].to(device)
-            if cfg.augment:
-                angle = torch.rand(len(index), generator=gen) * 2 * torch.pi
-                mirror = torch.rand(len(index), generator=gen) < 0.5
-            else:
-                angle, mirror = torch.zeros(len(index)), torch.zeros(len(index), dtype=torch.bool)
+            angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
+            mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
+            if not cfg.augment:
+                angle, mirror = torch.zeros_like(angle), torch.zeros_like(mirror)
             x, center, R = goal_inputs(
                 xy[:, :obs_len], train_scene[index].to(device), scene_maps, cfg, angle.to(device), mirror.to(device)
             )

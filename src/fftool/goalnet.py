@@ -70,7 +70,7 @@ def predict_goals(
     gen: torch.Generator,
 ) -> Tensor:
     """(B, K, 2) world goals, the map's mode first, for observed paths (B, 8, 2)."""
-    zeros = torch.zeros(len(obs), device=obs.device)
+    zeros = torch.zeros(len(obs), device=obs.device, dtype=obs.dtype)
     x, center, R = goal_inputs(obs, scene, maps, cfg, zeros, zeros.bool())
     logits = model(x)
     cells = sample_goals(
