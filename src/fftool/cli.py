@@ -81,6 +81,42 @@ def _store(root: Path | None) -> Any:
     return ArtifactStore(root or default_root())
 
 
+def _run_stages(
+    targets: list[str],
+    config: Path | None,
+    overrides: list[str] | None,
+    root: Path | None,
+    force: bool,
+    device: str = "auto",
+    benchmark: str | None = None,
+) -> dict[str, Any]:
+    """What every stage command does: resolve the config, build its own stage(s), require the rest."""
+    from fftool import pipeline
+    from fftool.config import load_config
+
+    return pipeline.run(
+        load_config(config, list(overrides or [])),
+        _store(root),
+        targets,
+        force=targets if force else [],
+        runtime=pipeline.Runtime(device=device),
+        upstream=False,
+        benchmark=benchmark,
+    )
+
+
+def _check_device(value: str) -> str:
+    if value not in ("auto", "cpu", "cuda"):
+        raise typer.BadParameter(f"{value!r} is not one of auto, cpu, cuda")
+    return value
+
+
+DeviceOption = Annotated[
+    str,
+    typer.Option("--device", help="Torch device: auto (CUDA when available), cpu or cuda.", callback=_check_device),
+]
+
+
 @app.command(epilog="Example: fftool ingest --raw ../shared/data/eth_ucy/raw --root artifacts")
 @_boundary
 def ingest(
@@ -99,29 +135,12 @@ def ingest(
     force: ForceOption = False,
 ) -> None:
     """Validate the raw ETH/UCY files and build the tracks and windows artifacts, with a summary table."""
-    from fftool import pipeline
-    from fftool.config import load_config
     from fftool.reports import windows_summary_table
     from fftool.ui import out_console
 
     overrides = list(set_ or []) + ([f"data.raw_dir={str(raw)!r}"] if raw else [])
-    cfg = load_config(config, overrides)
-    built = pipeline.run(
-        cfg, _store(root), ["tracks", "windows"], force=["tracks", "windows"] if force else [], upstream=False
-    )
+    built = _run_stages(["tracks", "windows"], config, overrides, root, force)
     out_console.print(windows_summary_table(built["windows"]))
-
-
-def _check_device(value: str) -> str:
-    if value not in ("auto", "cpu", "cuda"):
-        raise typer.BadParameter(f"{value!r} is not one of auto, cpu, cuda")
-    return value
-
-
-DeviceOption = Annotated[
-    str,
-    typer.Option("--device", help="Torch device: auto (CUDA when available), cpu or cuda.", callback=_check_device),
-]
 
 
 @app.command(
@@ -151,16 +170,11 @@ def forces(
     force: ForceOption = False,
 ) -> None:
     """Compute driving and repulsive social forces for every valid agent-window, with a summary table."""
-    from fftool import pipeline
     from fftool.config import load_config
     from fftool.reports import forces_summary_table
     from fftool.ui import log, out_console
 
-    cfg = load_config(config, list(set_ or []))
-    runtime = pipeline.Runtime(device=device)
-    built = pipeline.run(
-        cfg, _store(root), ["forces"], force=["forces"] if force else [], runtime=runtime, upstream=False
-    )
+    built = _run_stages(["forces"], config, set_, root, force, device)
     out_console.print(forces_summary_table(built["forces"]))
     if explain:
         from fftool.explain import explain_window
@@ -173,7 +187,7 @@ def forces(
             windows=built["windows"],
             forces=built["forces"],
             tracks=built["tracks"],
-            scenes_dir=Path(cfg.data.scenes_dir),
+            scenes_dir=Path(load_config(config, list(set_ or [])).data.scenes_dir),
             source=source,
         )
         log(f"wrote {png}")
@@ -185,14 +199,10 @@ def maps(
     config: ConfigOption = None, set_: SetOption = None, root: RootOption = None, force: ForceOption = False
 ) -> None:
     """Warp each scene image onto a metric ground grid and derive semantic channels (with check PNGs)."""
-    from fftool import pipeline
-    from fftool.config import load_config
     from fftool.reports import maps_table
     from fftool.ui import out_console
 
-    cfg = load_config(config, list(set_ or []))
-    built = pipeline.run(cfg, _store(root), ["maps"], force=["maps"] if force else [], upstream=False)
-    out_console.print(maps_table(built["maps"]))
+    out_console.print(maps_table(_run_stages(["maps"], config, set_, root, force)["maps"]))
 
 
 def _check_benchmark(value: str) -> str:
@@ -237,21 +247,10 @@ def train_goal(
     force: ForceOption = False,
 ) -> None:
     """Train the U-Net goal estimator on a benchmark's train part (resumable; best epoch by val goal-FDE)."""
-    from fftool import pipeline
-    from fftool.config import load_config
     from fftool.reports import goal_training_table
     from fftool.ui import out_console
 
-    cfg = load_config(config, list(set_ or []))
-    built = pipeline.run(
-        cfg,
-        _store(root),
-        ["goal"],
-        force=["goal"] if force else [],
-        runtime=pipeline.Runtime(device=device),
-        upstream=False,
-        benchmark=benchmark,
-    )
+    built = _run_stages(["goal"], config, set_, root, force, device, benchmark)
     out_console.print(goal_training_table(built["goal"]))
 
 
@@ -268,25 +267,13 @@ def sample_goals(
     force: ForceOption = False,
 ) -> None:
     """Sample K goals per agent-window with trained goal U-Nets; table of goal-FDE@K vs anchors and CV."""
-    from fftool import pipeline
-    from fftool.config import load_config
     from fftool.reports import goal_fde_table
     from fftool.ui import out_console
 
-    cfg = load_config(config, list(set_ or []))
-    store = _store(root)
-    artifacts = {}
-    for benchmark in benchmarks.split(","):
-        built = pipeline.run(
-            cfg,
-            store,
-            ["goals"],
-            force=["goals"] if force else [],
-            runtime=pipeline.Runtime(device=device),
-            upstream=False,
-            benchmark=benchmark,
-        )
-        artifacts[benchmark] = built["goals"]
+    artifacts = {
+        benchmark: _run_stages(["goals"], config, set_, root, force, device, benchmark)["goals"]
+        for benchmark in benchmarks.split(",")
+    }
     out_console.print(goal_fde_table(artifacts))
 
 

@@ -8,36 +8,34 @@ from rich.table import Table
 from fftool.store import Artifact
 
 
-def windows_summary_table(windows: Artifact) -> Table:
-    """Per benchmark and part: windows, valid agent-windows, pedestrians and frames."""
-    table = Table(
-        title=f"ETH/UCY leave-one-out windows ({windows.id})",
-        title_justify="left",
-        box=box.SIMPLE_HEAD,
-    )
+def _benchmark_part_table(title: str, columns: tuple[str, ...], rows: list[tuple[str, str, list[str]]]) -> Table:
+    """A table with benchmark and part columns, one section per benchmark."""
+    table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, caption_justify="left")
     table.add_column("benchmark", no_wrap=True)
     table.add_column("part", no_wrap=True)
-    for name in ("windows", "valid agent-windows", "pedestrians", "frames", "candidates"):
+    for name in columns:
         table.add_column(name, justify="right", no_wrap=True)
     previous = None
-    for row in windows.manifest.stats["summary"]:
-        if previous is not None and row["benchmark"] != previous:
+    for benchmark, part, cells in rows:
+        if previous is not None and benchmark != previous:
             table.add_section()
-        previous = row["benchmark"]
-        table.add_row(
-            row["benchmark"],
-            row["part"],
-            f"{row['windows']:,}",
-            f"{row['agent_windows']:,}",
-            f"{row['pedestrians']:,}",
-            f"{row['frames']:,}",
-            f"{row['candidate_windows']:,}",
-        )
+        previous = benchmark
+        table.add_row(benchmark, part, *cells)
+    return table
+
+
+def windows_summary_table(windows: Artifact) -> Table:
+    """Per benchmark and part: windows, valid agent-windows, pedestrians and frames."""
+    keys = ("windows", "agent_windows", "pedestrians", "frames", "candidate_windows")
+    table = _benchmark_part_table(
+        f"ETH/UCY leave-one-out windows ({windows.id})",
+        ("windows", "valid agent-windows", "pedestrians", "frames", "candidates"),
+        [(r["benchmark"], r["part"], [f"{r[k]:,}" for k in keys]) for r in windows.manifest.stats["summary"]],
+    )
     table.caption = (
         "windows: start frames with ≥ 1 pedestrian present at all 20 steps;\n"
         "candidates: every start frame; pedestrians, frames: in the part's raw files"
     )
-    table.caption_justify = "left"
     return table
 
 
@@ -68,32 +66,30 @@ def artifacts_table(artifacts: list[Artifact]) -> Table:
 def forces_summary_table(forces: Artifact) -> Table:
     """Per benchmark and part: mean |F_dr|, mean |F_re|, share of pairs removed as groups, time."""
     stats = forces.manifest.stats
-    table = Table(title=f"social forces ({forces.id})", title_justify="left", box=box.SIMPLE_HEAD)
-    table.add_column("benchmark", no_wrap=True)
-    table.add_column("part", no_wrap=True)
-    for name in ("agent-windows", "mean |F_dr| (m/s²)", "mean |F_re| (m/s²)", "pairs grouped", "compute (s)"):
-        table.add_column(name, justify="right", no_wrap=True)
-    previous = None
-    for row in stats["summary"]:
-        if previous is not None and row["benchmark"] != previous:
-            table.add_section()
-        previous = row["benchmark"]
-        table.add_row(
-            row["benchmark"],
-            row["part"],
-            f"{row['agent_windows']:,}",
-            f"{row['mean_abs_f_dr']:.3f}",
-            f"{row['mean_abs_f_re']:.3f}",
-            f"{row['grouped_pair_share']:.1%}",
-            f"{row['seconds']:.2f}",
-        )
+    table = _benchmark_part_table(
+        f"social forces ({forces.id})",
+        ("agent-windows", "mean |F_dr| (m/s²)", "mean |F_re| (m/s²)", "pairs grouped", "compute (s)"),
+        [
+            (
+                r["benchmark"],
+                r["part"],
+                [
+                    f"{r['agent_windows']:,}",
+                    f"{r['mean_abs_f_dr']:.3f}",
+                    f"{r['mean_abs_f_re']:.3f}",
+                    f"{r['grouped_pair_share']:.1%}",
+                    f"{r['seconds']:.2f}",
+                ],
+            )
+            for r in stats["summary"]
+        ],
+    )
     table.caption = (
         f"{stats['distinct_agent_windows']:,} distinct agent-windows computed in {stats['seconds_total']:.1f} s "
         f"(setup incl. DBSCAN {stats['seconds_setup']:.1f} s); means over agent-windows and all 20 steps;\n"
         "pairs grouped: ordered pairs of valid agents in one window that DBSCAN groups (no mutual repulsion); "
         "compute: time of the part's raw files (shared files are computed once)"
     )
-    table.caption_justify = "left"
     return table
 
 
