@@ -143,6 +143,23 @@ class GoalsConfig(_Section):
     seed: int = 0
 
 
+class CVAEConfig(_Section):
+    """The AgentFormer CVAE backbone and its ForceFormer input variant (defaults: AgentFormer ETH/UCY)."""
+
+    # baseline: position, velocity; goal: + goal and position - goal; dr: + driving force;
+    # re: + goal features + repulsive force (ForceFormer §III-A).
+    variant: Literal["baseline", "goal", "dr", "re"] = "baseline"
+    d_model: int = Field(256, gt=0)
+    n_heads: int = Field(8, gt=0)
+    d_ff: int = Field(512, gt=0)
+    dropout: float = Field(0.1, ge=0, lt=1)
+    n_layers: int = Field(2, gt=0)  # each of: past encoder, future encoder, future decoder
+    z_dim: int = Field(32, gt=0)
+    k: int = Field(20, gt=0)  # samples from the prior at test time and in the best-of-K loss
+    kl_min: float = Field(2.0, ge=0)  # free bits on the per-agent KL (AgentFormer's min_clip)
+    seed: int = 0
+
+
 class PipelineConfig(_Section):
     """The whole pipeline's configuration, as resolved from defaults, a file and overrides."""
 
@@ -153,6 +170,7 @@ class PipelineConfig(_Section):
     maps: MapsConfig = MapsConfig()
     goal: GoalConfig = GoalConfig()
     goals: GoalsConfig = GoalsConfig()
+    cvae: CVAEConfig = CVAEConfig()
 
 
 def _parse_value(text: str) -> Any:

@@ -1,0 +1,273 @@
+"""AgentFormer's CVAE (Yuan et al., ICCV 2021) with ForceFormer's input variants, batched with padding.
+
+encode past (X-encoder) → posterior q(z|X,Y) (Y-encoder) / prior p(z|X) → decode autoregressively.
+Letters: B windows, A agent slots, T steps, D model width; a scene is flattened time-major into
+T·A tokens (token t·A + a). Padded agent slots are masked out of every attention and every loss, so
+adding padding changes nothing for the real agents. research/agentformer.md has the reference details.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import torch
+from torch import Tensor, nn
+
+
+class AgentAwareAttention(nn.Module):
+    """Multi-head attention with separate query/key projections for same-agent token pairs.
+
+    score(i, j) = q_self_i · k_self_j if tokens i and j belong to the same agent, else q_i · k_j
+    (both / sqrt(d_head)); values and output projection are shared (AgentFormer §3.2).
+    """
+
+    def __init__(self, d_model: int, n_heads: int, dropout: float) -> None:
+        super().__init__()
+        assert d_model % n_heads == 0, f"d_model {d_model} must be divisible by n_heads {n_heads}"
+        self.n_heads, self.d_head = n_heads, d_model // n_heads
+        self.q, self.k, self.v = (nn.Linear(d_model, d_model) for _ in range(3))
+        self.q_self, self.k_self = nn.Linear(d_model, d_model), nn.Linear(d_model, d_model)
+        self.out = nn.Linear(d_model, d_model)
+        self.dropout = nn.Dropout(dropout)
+        for layer in (self.q, self.k, self.v, self.q_self, self.k_self):
+            nn.init.xavier_uniform_(layer.weight)
+            nn.init.zeros_(layer.bias)
+        nn.init.zeros_(self.out.bias)
+
+    def _heads(self, x: Tensor) -> Tensor:
+        B, L, D = x.shape
+        return x.view(B, L, self.n_heads, self.d_head).transpose(1, 2)  # (B, H, L, dh)
+
+    def forward(self, query: Tensor, key: Tensor, same_agent: Tensor, allowed: Tensor) -> Tensor:
+        """query (B, Lq, D), key (B, Lk, D); same_agent (Lq, Lk) bool; allowed (B, Lq, Lk) bool."""
+        scale = 1 / math.sqrt(self.d_head)
+        other = self._heads(self.q(query)) @ self._heads(self.k(key)).transpose(-1, -2)
+        own = self._heads(self.q_self(query)) @ self._heads(self.k_self(key)).transpose(-1, -2)
+        scores = torch.where(same_agent, own, other) * scale  # (B, H, Lq, Lk)
+        scores = scores.masked_fill(~allowed[:, None], float("-inf"))
+        weights = self.dropout(torch.softmax(scores, dim=-1))
+        mixed = (weights @ self._heads(self.v(key))).transpose(1, 2).flatten(2)  # (B, Lq, D)
+        return self.out(mixed)
+
+
+class _FeedForward(nn.Sequential):
+    def __init__(self, d_model: int, d_ff: int, dropout: float) -> None:
+        super().__init__(nn.Linear(d_model, d_ff), nn.ReLU(), nn.Dropout(dropout), nn.Linear(d_ff, d_model))
+
+
+class EncoderLayer(nn.Module):
+    """Post-LN transformer encoder layer with agent-aware self-attention."""
+
+    def __init__(self, d_model: int, n_heads: int, d_ff: int, dropout: float) -> None:
+        super().__init__()
+        self.attn = AgentAwareAttention(d_model, n_heads, dropout)
+        self.ff = _FeedForward(d_model, d_ff, dropout)
+        self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, x: Tensor, same: Tensor, allowed: Tensor) -> Tensor:
+        x = self.norm1(x + self.drop(self.attn(x, x, same, allowed)))
+        return self.norm2(x + self.drop(self.ff(x)))
+
+
+class DecoderLayer(nn.Module):
+    """Post-LN decoder layer: agent-aware self-attention, then agent-aware cross-attention to a memory."""
+
+    def __init__(self, d_model: int, n_heads: int, d_ff: int, dropout: float) -> None:
+        super().__init__()
+        self.self_attn = AgentAwareAttention(d_model, n_heads, dropout)
+        self.cross_attn = AgentAwareAttention(d_model, n_heads, dropout)
+        self.ff = _FeedForward(d_model, d_ff, dropout)
+        self.norms = nn.ModuleList(nn.LayerNorm(d_model) for _ in range(3))
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, x: Tensor, memory: Tensor, masks: tuple[Tensor, Tensor, Tensor, Tensor]) -> Tensor:
+        same_self, allowed_self, same_cross, allowed_cross = masks
+        x = self.norms[0](x + self.drop(self.self_attn(x, x, same_self, allowed_self)))
+        x = self.norms[1](x + self.drop(self.cross_attn(x, memory, same_cross, allowed_cross)))
+        return self.norms[2](x + self.drop(self.ff(x)))
+
+
+class TimeEmbedding(nn.Module):
+    """Linear(features) concatenated with a sinusoidal encoding of the step, projected back to D."""
+
+    def __init__(self, in_dim: int, d_model: int, dropout: float) -> None:
+        super().__init__()
+        self.inp = nn.Linear(in_dim, d_model)
+        self.proj = nn.Linear(2 * d_model, d_model)
+        self.drop = nn.Dropout(dropout)
+        self.d_model = d_model
+
+    def encoding(self, steps: Tensor) -> Tensor:
+        """(T,) step indices -> (T, D) sin on even, cos on odd dims, base 10000."""
+        div = torch.exp(torch.arange(0, self.d_model, 2, device=steps.device) * (-math.log(10000.0) / self.d_model))
+        angle = steps[:, None].float() * div[None]
+        return torch.stack([torch.sin(angle), torch.cos(angle)], -1).flatten(1)[:, : self.d_model]
+
+    def forward(self, x: Tensor, first_step: int = 0) -> Tensor:
+        """x (B, A, T, F) -> tokens (B, T·A, D), time-major; steps numbered from first_step."""
+        B, A, T, _ = x.shape
+        steps = torch.arange(first_step, first_step + T, device=x.device)
+        h = self.inp(x)  # (B, A, T, D)
+        pe = self.encoding(steps)[None, None].expand(B, A, T, -1)
+        h = self.drop(self.proj(torch.cat([h, pe], -1)))
+        return h.transpose(1, 2).reshape(B, T * A, -1)
+
+
+def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> tuple[Tensor, Tensor]:
+    """Same-agent pattern (Lq, Lk) and allowed pairs (B, Lq, Lk) for time-major token layouts.
+
+    Keys of padded agents are never allowed; every query may see itself, so no softmax row is empty
+    (padded queries see only themselves). With `causal`, a token at step s sees steps <= s of everyone.
+    """
+    B, A = agent_mask.shape
+    q_agent = torch.arange(t_query * A, device=agent_mask.device) % A
+    k_agent = torch.arange(t_key * A, device=agent_mask.device) % A
+    same = q_agent[:, None] == k_agent[None, :]
+    allowed = agent_mask.repeat(1, t_key)[:, None, :].expand(B, t_query * A, t_key * A)
+    if causal:
+        q_step = torch.arange(t_query * A, device=agent_mask.device) // A
+        k_step = torch.arange(t_key * A, device=agent_mask.device) // A
+        allowed = allowed & (k_step[None, :] <= q_step[:, None])
+    if t_query == t_key:
+        allowed = allowed | torch.eye(t_query * A, dtype=torch.bool, device=agent_mask.device)
+    return same, allowed
+
+
+class Gaussian(NamedTuple):
+    mu: Tensor  # (B, A, Z)
+    logvar: Tensor  # (B, A, Z)
+
+    def sample(self, generator: torch.Generator | None = None) -> Tensor:
+        noise = torch.randn(self.mu.shape, generator=generator, device=self.mu.device, dtype=self.mu.dtype)
+        return self.mu + noise * torch.exp(0.5 * self.logvar)
+
+
+def kl_divergence(q: Gaussian, p: Gaussian) -> Tensor:
+    """KL(q || p) per agent, summed over latent dims: (B, A)."""
+    var_q, var_p = q.logvar.exp(), p.logvar.exp() + 1e-8
+    return 0.5 * (torch.log(var_p) - q.logvar + (var_q + (q.mu - p.mu) ** 2) / var_p - 1).sum(-1)
+
+
+StepFeatures = Callable[[Tensor, int], Tensor]
+"""(positions so far (B, A, s, 2) incl. the last observed, step index s - 1) -> decoder features (B, A, F)."""
+
+
+class ForceFormer(nn.Module):
+    """The CVAE: X-encoder, Y-encoder (posterior), learned prior, autoregressive decoder."""
+
+    def __init__(
+        self,
+        *,
+        input_dim: int,
+        decoder_dim: int,
+        d_model: int = 256,
+        n_heads: int = 8,
+        d_ff: int = 512,
+        dropout: float = 0.1,
+        n_layers: int = 2,
+        z_dim: int = 32,
+    ) -> None:
+        super().__init__()
+        self.z_dim = z_dim
+        self.past_embed = TimeEmbedding(input_dim, d_model, dropout)
+        self.future_embed = TimeEmbedding(input_dim, d_model, dropout)
+        self.decoder_embed = TimeEmbedding(decoder_dim + z_dim, d_model, dropout)
+        self.encoder = nn.ModuleList(EncoderLayer(d_model, n_heads, d_ff, dropout) for _ in range(n_layers))
+        self.future_encoder = nn.ModuleList(DecoderLayer(d_model, n_heads, d_ff, dropout) for _ in range(n_layers))
+        self.decoder = nn.ModuleList(DecoderLayer(d_model, n_heads, d_ff, dropout) for _ in range(n_layers))
+        self.q_head, self.p_head = nn.Linear(d_model, 2 * z_dim), nn.Linear(d_model, 2 * z_dim)
+        self.out = nn.Linear(d_model, 2)
+        for head in (self.q_head, self.p_head, self.out):  # N(0, 0.01²), zero bias: prior ≈ N(0, I) at init
+            nn.init.normal_(head.weight, std=0.01)
+            nn.init.zeros_(head.bias)
+
+    # --- encode -----------------------------------------------------------------------------------
+
+    def encode_past(self, past: Tensor, agent_mask: Tensor) -> tuple[Tensor, Tensor]:
+        """past (B, A, Tp, F) -> context tokens (B, Tp·A, D) and per-agent context (B, A, D)."""
+        B, A, Tp, _ = past.shape
+        x = self.past_embed(past)
+        same, allowed = _token_masks(agent_mask, Tp, Tp, causal=False)
+        for layer in self.encoder:
+            x = layer(x, same, allowed)
+        return x, x.view(B, Tp, A, -1).mean(1)
+
+    def prior(self, agent_context: Tensor) -> Gaussian:
+        return Gaussian(*self.p_head(agent_context).chunk(2, -1))
+
+    def posterior(self, future: Tensor, context: Tensor, agent_mask: Tensor) -> Gaussian:
+        """future (B, A, Tf, F) with the context -> q(z | X, Y)."""
+        B, A, Tf, _ = future.shape
+        Tp = context.shape[1] // A
+        x = self.future_embed(future)
+        masks = (*_token_masks(agent_mask, Tf, Tf, causal=False), *_token_masks(agent_mask, Tf, Tp, causal=False))
+        for layer in self.future_encoder:
+            x = layer(x, context, masks)
+        return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).chunk(2, -1))
+
+    # --- decode -----------------------------------------------------------------------------------
+
+    def decode(
+        self, z: Tensor, last_pos: Tensor, context: Tensor, agent_mask: Tensor, steps: int, features: StepFeatures
+    ) -> Tensor:
+        """Autoregressive rollout: (B, A, steps, 2) positions, each an offset from the last observed one.
+
+        At step s the decoder reads every earlier step of every agent (and the same step of others) plus
+        the whole context; its own outputs are fed back detached, through `features`, which also lets
+        ForceFormer recompute the forces from the predicted positions.
+        """
+        B, A, _ = last_pos.shape
+        Tp = context.shape[1] // A
+        positions = last_pos[:, :, None]  # (B, A, 1, 2)
+        inputs: list[Tensor] = []
+        outputs = []
+        for step in range(steps):
+            inputs.append(torch.cat([features(positions, step), z], -1))
+            x = self.decoder_embed(torch.stack(inputs, 2))  # (B, (step+1)·A, D)
+            masks = (
+                *_token_masks(agent_mask, step + 1, step + 1, causal=True),
+                *_token_masks(agent_mask, step + 1, Tp, causal=False),
+            )
+            for layer in self.decoder:
+                x = layer(x, context, masks)
+            offset = self.out(x[:, -A:])  # (B, A, 2) the newest step
+            outputs.append(last_pos + offset)
+            positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
+        return torch.stack(outputs, 2)
+
+
+class LossParts(NamedTuple):
+    total: Tensor
+    recon: Tensor
+    kl: Tensor
+    best_of_k: Tensor
+
+
+def best_of_k(samples: Tensor, future: Tensor, agent_mask: Tensor) -> Tensor:
+    """Mean over real agents of min over K of the squared error summed over steps and xy.
+
+    samples (B, K, A, T, 2), future (B, A, T, 2), agent_mask (B, A).
+    """
+    error = ((samples - future[:, None]) ** 2).sum((-1, -2))  # (B, K, A)
+    best = error.min(1).values  # (B, A) per agent, independently
+    return (best * agent_mask).sum() / agent_mask.sum().clamp_min(1)
+
+
+def cvae_loss(
+    recon: Tensor, future: Tensor, q: Gaussian, p: Gaussian, samples: Tensor, agent_mask: Tensor, kl_min: float
+) -> LossParts:
+    """AgentFormer's loss: squared error summed over time and xy, mean over agents; per-agent KL clamped
+    below at kl_min (free bits); best-of-K over prior samples; all weights 1."""
+    n = agent_mask.sum().clamp_min(1)
+    recon_term = (((recon - future) ** 2).sum((-1, -2)) * agent_mask).sum() / n
+    kl_term = ((kl_divergence(q, p) * agent_mask).sum() / n).clamp_min(kl_min)
+    sample_term = best_of_k(samples, future, agent_mask)
+    return LossParts(recon_term + kl_term + sample_term, recon_term, kl_term, sample_term)
+
+
+def position_features(positions: Tensor, step: int) -> Tensor:
+    """The baseline decoder input: the newest position (AgentFormer feeds positions only)."""
+    return positions[:, :, -1]

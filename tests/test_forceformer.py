@@ -1,0 +1,119 @@
+"""The CVAE backbone: masking, agent-aware attention, KL free bits, best-of-K, shapes and gradients."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from fftool.models.forceformer import (
+    AgentAwareAttention,
+    ForceFormer,
+    Gaussian,
+    _token_masks,
+    best_of_k,
+    cvae_loss,
+    position_features,
+)
+
+SMALL = {"d_model": 32, "n_heads": 4, "d_ff": 64, "dropout": 0.0, "n_layers": 2, "z_dim": 8}
+
+
+def _model(seed: int = 0) -> ForceFormer:
+    torch.manual_seed(seed)
+    return ForceFormer(input_dim=4, decoder_dim=2, **SMALL).eval()
+
+
+def _run(model: ForceFormer, past: torch.Tensor, future: torch.Tensor, mask: torch.Tensor, z: torch.Tensor):
+    context, agent_context = model.encode_past(past, mask)
+    q = model.posterior(future, context, mask)
+    p = model.prior(agent_context)
+    out = model.decode(z, past[:, :, -1, :2], context, mask, 12, position_features)
+    return q, p, out
+
+
+def test_padded_agents_change_nothing() -> None:
+    g = torch.Generator().manual_seed(1)
+    past, future = torch.randn(2, 3, 8, 4, generator=g), torch.randn(2, 3, 12, 4, generator=g)
+    z = torch.randn(2, 3, 8, generator=g)
+    mask = torch.ones(2, 3, dtype=torch.bool)
+    model = _model()
+    q, p, out = _run(model, past, future, mask, z)
+    pad = lambda x: torch.cat([x, 100 * torch.randn(x.shape[0], 2, *x.shape[2:], generator=g)], 1)  # noqa: E731
+    padded_mask = torch.cat([mask, torch.zeros(2, 2, dtype=torch.bool)], 1)
+    q2, p2, out2 = _run(model, pad(past), pad(future), padded_mask, pad(z))
+    torch.testing.assert_close(out2[:, :3], out, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(q2.mu[:, :3], q.mu, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(p2.logvar[:, :3], p.logvar, atol=1e-5, rtol=1e-5)
+    assert torch.isfinite(out2).all()
+
+
+def test_agent_aware_attention_separates_self_from_others() -> None:
+    torch.manual_seed(0)
+    attn = AgentAwareAttention(16, 2, 0.0).eval()
+    x = torch.randn(1, 6, 16)
+    allowed = torch.ones(1, 6, 6, dtype=torch.bool)
+    nobody_same = torch.zeros(6, 6, dtype=torch.bool)
+    same, _ = _token_masks(torch.ones(1, 3, dtype=torch.bool), 2, 2, causal=False)
+    assert not torch.allclose(attn(x, x, same, allowed), attn(x, x, nobody_same, allowed))
+    # with the self projections equal to the others', it is plain multi-head attention
+    attn.q_self.load_state_dict(attn.q.state_dict())
+    attn.k_self.load_state_dict(attn.k.state_dict())
+    torch.testing.assert_close(attn(x, x, same, allowed), attn(x, x, nobody_same, allowed))
+    reference = torch.nn.MultiheadAttention(16, 2, batch_first=True)
+    reference.in_proj_weight.data = torch.cat([attn.q.weight, attn.k.weight, attn.v.weight])
+    reference.in_proj_bias.data = torch.cat([attn.q.bias, attn.k.bias, attn.v.bias])
+    reference.out_proj.load_state_dict(attn.out.state_dict())
+    torch.testing.assert_close(
+        attn(x, x, same, allowed), reference(x, x, x, need_weights=False)[0], atol=1e-6, rtol=1e-5
+    )
+
+
+def test_token_masks_are_time_major_and_causal() -> None:
+    mask = torch.tensor([[True, True, False]])
+    same, allowed = _token_masks(mask, 2, 2, causal=True)
+    assert same[0, 3] and not same[0, 1]  # token 3 = (step 1, agent 0)
+    assert allowed[0, 4, 0] and allowed[0, 4, 3] and not allowed[0, 0, 4]  # step 1 sees step 0, not vice versa
+    assert not allowed[0, 0, 2] and allowed[0, 2, 2]  # padded keys hidden; a padded query sees itself
+
+
+def test_kl_is_clamped_below_at_free_bits() -> None:
+    mu = torch.zeros(1, 2, 4, requires_grad=True)
+    q = Gaussian(mu, torch.zeros(1, 2, 4))
+    p = Gaussian(torch.zeros(1, 2, 4), torch.zeros(1, 2, 4))
+    future = torch.zeros(1, 2, 12, 2)
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    parts = cvae_loss(future, future, q, p, future[:, None], mask, kl_min=2.0)
+    assert parts.kl.item() == 2.0
+    parts.total.backward()
+    assert mu.grad is not None and torch.count_nonzero(mu.grad) == 0  # no gradient below the clamp
+    far = Gaussian(torch.full((1, 2, 4), 3.0), torch.zeros(1, 2, 4))
+    assert cvae_loss(future, future, far, p, future[:, None], mask, 2.0).kl.item() == pytest.approx(18.0)
+
+
+def test_best_of_k_picks_each_agents_best_sample() -> None:
+    future = torch.zeros(1, 2, 12, 2)
+    samples = torch.stack([torch.full((2, 12, 2), 1.0), torch.full((2, 12, 2), 3.0)])[None]  # (1, K=2, A, T, 2)
+    samples[0, 1, 1] = 0.5  # agent 1's best is sample 1, agent 0's is sample 0
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    expected = (1.0**2 * 24 + 0.5**2 * 24) / 2
+    assert best_of_k(samples, future, mask).item() == pytest.approx(expected)
+    assert best_of_k(samples, future, torch.tensor([[True, False]])).item() == pytest.approx(24.0)
+
+
+def test_training_step_runs_forward_and_backward() -> None:
+    model = _model().train()
+    g = torch.Generator().manual_seed(3)
+    past, future = torch.randn(2, 4, 8, 4, generator=g), torch.randn(2, 4, 12, 4, generator=g)
+    mask = torch.tensor([[True, True, True, False], [True, False, False, False]])
+    context, agent_context = model.encode_past(past, mask)
+    q, p = model.posterior(future, context, mask), model.prior(agent_context)
+    recon = model.decode(q.sample(g), past[:, :, -1, :2], context, mask, 12, position_features)
+    k = 3
+    rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
+    z = Gaussian(rep(p.mu), rep(p.logvar)).sample(g)
+    samples = model.decode(z, rep(past[:, :, -1, :2]), rep(context), rep(mask), 12, position_features)
+    parts = cvae_loss(recon, future[..., :2], q, p, samples.view(2, k, 4, 12, 2), mask, 2.0)
+    parts.total.backward()
+    assert recon.shape == (2, 4, 12, 2) and torch.isfinite(parts.total)
+    missing = [name for name, param in model.named_parameters() if param.grad is None]
+    assert missing == []
