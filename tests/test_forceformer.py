@@ -117,3 +117,32 @@ def test_training_step_runs_forward_and_backward() -> None:
     assert recon.shape == (2, 4, 12, 2) and torch.isfinite(parts.total)
     missing = [name for name, param in model.named_parameters() if param.grad is None]
     assert missing == []
+
+
+def _decode_by_recomputation(model: ForceFormer, z, last_pos, context, mask, steps):
+    """The official way: re-run the whole decoder over every step so far, at every step."""
+    B, A, _ = last_pos.shape
+    Tp = context.shape[1] // A
+    positions, inputs, outputs = last_pos[:, :, None], [], []
+    for step in range(steps):
+        inputs.append(torch.cat([position_features(positions, step), z], -1))
+        x = model.decoder_embed(torch.stack(inputs, 2))
+        masks = (*_token_masks(mask, step + 1, step + 1, causal=True), *_token_masks(mask, step + 1, Tp, causal=False))
+        for layer in model.decoder:
+            x = layer(x, context, masks)
+        outputs.append(last_pos + model.out(x[:, -A:]))
+        positions = torch.cat([positions, outputs[-1][:, :, None]], 2)
+    return torch.stack(outputs, 2)
+
+
+def test_cached_decoding_equals_recomputing_the_prefix() -> None:
+    model = _model(5)
+    g = torch.Generator().manual_seed(2)
+    past = torch.randn(2, 3, 8, 4, generator=g)
+    mask = torch.tensor([[True, True, True], [True, True, False]])
+    context, _ = model.encode_past(past, mask)
+    z = torch.randn(2, 3, 8, generator=g)
+    with torch.no_grad():
+        fast = model.decode(z, past[:, :, -1, :2], context, mask, 12, position_features)
+        slow = _decode_by_recomputation(model, z, past[:, :, -1, :2], context, mask, 12)
+    torch.testing.assert_close(fast[mask], slow[mask], atol=1e-5, rtol=1e-5)

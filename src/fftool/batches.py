@@ -107,3 +107,104 @@ def load_scene_maps(maps: Artifact) -> SceneMaps:
     )
     resolution = float(next(iter(meta["scenes"].values()))["resolution_m"]) if names else 1.0
     return SceneMaps(stack, origins, resolution, names)
+
+
+@dataclass(frozen=True)
+class SceneBatch:
+    """Windows padded to A agent slots: the data <-> model contract of the CVAE.
+
+    xy (B, A, L, 2) world positions; agent_mask (B, A); f_dr, f_re (B, A, L, 2) stored forces; speed0
+    (B, A) desired speed; group (B, A) window-local group ids (-1 alone); row (B, A) the agent_windows
+    row of each slot (-1 padding).
+    """
+
+    xy: torch.Tensor
+    agent_mask: torch.Tensor
+    f_dr: torch.Tensor
+    f_re: torch.Tensor
+    speed0: torch.Tensor
+    group: torch.Tensor
+    row: torch.Tensor
+
+    def to(self, device: torch.device) -> SceneBatch:
+        return SceneBatch(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class SceneSet:
+    """Every window of one benchmark part with its agents' rows, ready to be cut into padded batches."""
+
+    data: AgentWindows
+    arrays: dict[str, np.ndarray]  # forces arrays restricted to data's rows
+    window_start: np.ndarray  # (W + 1,) agents of window w are data rows window_start[w]:window_start[w+1]
+
+    @property
+    def windows(self) -> int:
+        return len(self.window_start) - 1
+
+    def agents(self) -> np.ndarray:
+        """(W,) agents per window."""
+        return np.diff(self.window_start)
+
+    def plan(self, order: np.ndarray, batch_windows: int, max_pairs: int, rng: np.random.Generator) -> list[np.ndarray]:
+        """Cut windows (in the given order) into batches of similar agent counts.
+
+        Attention cost grows with agents², so windows are sorted by agent count inside blocks of
+        16 batches and cut where a batch would exceed `batch_windows` windows or `max_pairs` (windows ×
+        largest agent count²); the batches are then shuffled, so the order stays random but padding small.
+        """
+        counts = self.agents()
+        batches: list[np.ndarray] = []
+        block = 16 * batch_windows
+        for start in range(0, len(order), block):
+            chunk = order[start : start + block]
+            chunk = chunk[np.argsort(counts[chunk], kind="stable")]
+            begin = 0
+            while begin < len(chunk):
+                end = begin + 1
+                while (
+                    end < len(chunk)
+                    and end - begin < batch_windows
+                    and (end + 1 - begin) * counts[chunk[end]] ** 2 <= max_pairs
+                ):
+                    end += 1
+                batches.append(chunk[begin:end])
+                begin = end
+        return [batches[i] for i in rng.permutation(len(batches))]
+
+    def batch(self, windows: np.ndarray, max_agents: int = 0, rng: np.random.Generator | None = None) -> SceneBatch:
+        """Pad the given windows to their largest agent count (capped at max_agents, sampled with rng)."""
+        members = [np.arange(self.window_start[w], self.window_start[w + 1]) for w in windows]
+        if max_agents:
+            members = [
+                np.sort((rng or np.random.default_rng(0)).choice(m, max_agents, replace=False))
+                if len(m) > max_agents
+                else m
+                for m in members
+            ]
+        A = max(len(m) for m in members)
+        index = np.full((len(windows), A), -1, dtype=np.int64)
+        for i, m in enumerate(members):  # one small copy per window, not per agent
+            index[i, : len(m)] = m
+        mask = index >= 0
+        safe = np.where(mask, index, 0)
+        take = lambda a: torch.as_tensor(a[safe])  # noqa: E731
+        return SceneBatch(
+            xy=torch.as_tensor(self.data.xy[safe], dtype=torch.float32),
+            agent_mask=torch.as_tensor(mask),
+            f_dr=take(self.arrays["f_dr"]),
+            f_re=take(self.arrays["f_re"]),
+            speed0=take(self.arrays["speed0"])[..., 0],
+            group=torch.where(torch.as_tensor(mask), take(self.arrays["group_id"]).long(), -1),
+            row=torch.as_tensor(np.where(mask, self.data.row[safe], -1)),
+        )
+
+
+def load_scene_set(windows: Artifact, forces: Artifact, benchmark: str, part: str, stride: int = 1) -> SceneSet:
+    """A benchmark part's windows with the forces of each agent-window (rows align by construction)."""
+    from fftool.schema import FORCES_ARRAYS
+
+    data = load_agent_windows(windows, benchmark, part, stride)
+    arrays = {name: np.load(forces.file(file), mmap_mode="r")[data.row] for name, file in FORCES_ARRAYS.items()}
+    change = np.flatnonzero(np.diff(data.window_id)) + 1
+    return SceneSet(data, arrays, np.r_[0, change, len(data)])

@@ -247,11 +247,11 @@ def train_goal(
     force: ForceOption = False,
 ) -> None:
     """Train the U-Net goal estimator on a benchmark's train part (resumable; best epoch by val goal-FDE)."""
-    from fftool.reports import goal_training_table
+    from fftool.reports import training_table
     from fftool.ui import out_console
 
     built = _run_stages(["goal"], config, set_, root, force, device, benchmark)
-    out_console.print(goal_training_table(built["goal"]))
+    out_console.print(training_table(built["goal"], "goal U-Net"))
 
 
 @app.command(
@@ -275,6 +275,41 @@ def sample_goals(
         for benchmark in benchmarks.split(",")
     }
     out_console.print(goal_fde_table(artifacts))
+
+
+def _check_variant(value: str) -> str:
+    if value not in ("baseline", "goal", "dr", "re"):
+        raise typer.BadParameter(f"{value!r} is not one of baseline, goal, dr, re")
+    return value
+
+
+@app.command(
+    "train-cvae", epilog="Example: fftool train-cvae --benchmark zara1 --variant dr --config pipelines/quick.toml"
+)
+@_boundary
+def train_cvae(
+    benchmark: BenchmarkOption = "zara1",
+    variant: Annotated[
+        str,
+        typer.Option(
+            "--variant",
+            help="baseline (AgentFormer), goal, dr (driving force) or re (repulsive).",
+            callback=_check_variant,
+        ),
+    ] = "baseline",
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Train the AgentFormer CVAE with a ForceFormer input variant (batched, resumable, best by val minADE)."""
+    from fftool.reports import training_table
+    from fftool.ui import out_console
+
+    overrides = [*(set_ or []), f"cvae.variant={variant!r}"]
+    built = _run_stages(["cvae"], config, overrides, root, force, device, benchmark)
+    out_console.print(training_table(built["cvae"], f"CVAE {variant}"))
 
 
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")

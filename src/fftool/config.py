@@ -157,6 +157,19 @@ class CVAEConfig(_Section):
     z_dim: int = Field(32, gt=0)
     k: int = Field(20, gt=0)  # samples from the prior at test time and in the best-of-K loss
     kl_min: float = Field(2.0, ge=0)  # free bits on the per-agent KL (AgentFormer's min_clip)
+    # Training (AgentFormer: Adam 1e-4, ×0.5 every 10 epochs; ForceFormer trains 50 epochs).
+    epochs: int = Field(50, gt=0)
+    lr: float = Field(1e-4, gt=0)
+    decay_every: int = Field(10, gt=0)
+    decay_gamma: float = Field(0.5, gt=0, le=1)
+    batch_windows: int = Field(32, gt=0)  # windows per optimizer step at most (the official code: 1)
+    max_agent_pairs: int = Field(4096, gt=0)  # and at most this many windows × agents² per step (memory)
+    train_k: int = Field(20, gt=0)  # prior samples in the best-of-K loss during training
+    max_agents: int = Field(0, ge=0)  # cap agents per training window (AgentFormer eth: 32); 0 = none
+    train_stride: int = Field(1, gt=0)  # use every n-th window start of the train part
+    max_train_windows: int = Field(0, ge=0)  # per epoch, 0 = all
+    rotate: bool = True  # random scene rotation in training (AgentFormer's rand_rot_scene)
+    val_max_windows: int = Field(200, ge=0)  # validation windows per epoch (0 = all)
     seed: int = 0
 
 

@@ -35,7 +35,7 @@ from fftool.socialforce import group_ids, window_forces
 from fftool.store import Artifact
 
 NAME: Final = "forces"
-VERSION: Final = 1
+VERSION: Final = 2  # 2: the time step used is recorded in the stats (dt_s) for the model's decoder
 INPUTS: Final = ("tracks", "windows")
 # Pairwise work per batch (windows × actors² × steps): bounds the pairwise tensors to ~8 MB each.
 _PAIR_BUDGET = 1_000_000
@@ -243,7 +243,8 @@ def build(
         pa.Table.from_pandas(agents[["benchmark", "part", "window_id", "ped_id"]], preserve_index=False),
         out_dir / FORCES_INDEX_FILE,
     )
-    return _summary(agents, rows, features, take, out_dir, seconds, setup_s, time.perf_counter() - started)
+    stats = _summary(agents, rows, features, take, out_dir, seconds, setup_s, time.perf_counter() - started)
+    return {**stats, "dt_s": dt_s, "obs_len": obs_len}
 
 
 def _summary(agents, rows, features, take, out_dir, seconds, setup_s, total_s) -> dict[str, Any]:

@@ -4,6 +4,7 @@
                           └──────────────────────▲
     scene images + homographies ──▶ maps ──▶ goal (per benchmark) ──▶ goals (per benchmark)
                                    windows ──┘
+    windows + forces ──▶ cvae (per benchmark and variant)
 
 Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
 fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
@@ -20,7 +21,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from fftool import forces, goal, goals, ingest, maps, windows
+from fftool import cvae, forces, goal, goals, ingest, maps, windows
 from fftool.config import PipelineConfig
 from fftool.errors import FftoolError
 from fftool.hashing import fingerprint
@@ -126,9 +127,34 @@ def _build_goal(
             ctx.scratch,
             runtime.torch_device(),
             on_progress=_bar_callback(bar, task),
-            on_epoch=lambda row: bar.console.print(
-                "  " + "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items())
-            ),
+            on_epoch=_epoch_line(bar),
+        )
+
+
+def _epoch_line(bar: Any) -> Callable[[dict[str, Any]], None]:
+    """One printed line per epoch, so logs show progress where no live bar is drawn (CI, nohup)."""
+    return lambda row: bar.console.print(
+        "  " + "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items())
+    )
+
+
+def _build_cvae(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
+) -> dict[str, Any]:
+    assert benchmark is not None
+    with progress() as bar:
+        task = bar.add_task(f"train CVAE {cfg.cvae.variant} ({benchmark})", total=None)
+        return cvae.build(
+            cfg.cvae,
+            cfg.forces,
+            benchmark,
+            inputs["windows"],
+            inputs["forces"],
+            ctx.dir,
+            ctx.scratch,
+            runtime.torch_device(),
+            on_progress=_bar_callback(bar, task),
+            on_epoch=_epoch_line(bar),
         )
 
 
@@ -189,6 +215,15 @@ STAGES: dict[str, Stage] = {
             "fftool sample-goals",
             lambda cfg: cfg.goals,
             _build_goals,
+            per_benchmark=True,
+        ),
+        Stage(
+            cvae.NAME,
+            cvae.VERSION,
+            cvae.INPUTS,
+            "fftool train-cvae",
+            lambda cfg: cfg.cvae,
+            _build_cvae,
             per_benchmark=True,
         ),
     )

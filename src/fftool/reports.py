@@ -116,11 +116,11 @@ def maps_table(maps: Artifact) -> Table:
     return table
 
 
-def goal_training_table(goal: Artifact) -> Table:
-    """One row per epoch of a goal U-Net training: loss terms and validation goal-FDE."""
-    stats = goal.manifest.stats
+def training_table(artifact: Artifact, what: str) -> Table:
+    """One row per epoch of a training: loss terms and validation metrics; the kept epoch in bold."""
+    stats = artifact.manifest.stats
     table = Table(
-        title=f"goal U-Net, {stats['benchmark']} ({goal.id}, {stats['device']})",
+        title=f"{what}, {stats['benchmark']} ({artifact.id}, {stats['device']})",
         title_justify="left",
         box=box.SIMPLE_HEAD,
     )
@@ -132,11 +132,7 @@ def goal_training_table(goal: Artifact) -> Table:
         table.add_row(
             *(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()), style="bold" if best else None
         )
-    table.caption = (
-        f"best epoch {stats['best_epoch']} (bold) kept; {stats['train_per_epoch']:,} of "
-        f"{stats['train_agent_windows']:,} train agent-windows per epoch, "
-        f"{stats['val_agent_windows']:,} val agent-windows"
-    )
+    table.caption = f"best epoch {stats['best_epoch']} (bold) kept"
     table.caption_justify = "left"
     return table
 

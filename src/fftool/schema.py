@@ -104,3 +104,7 @@ CV_GOALS_FILE: Final = "cv_goals.npy"
 # --- goal artifact (a trained goal U-Net) -------------------------------------------------------------
 GOAL_MODEL_FILE: Final = "model.pt"  # {"state_dict", "in_channels", "config", "benchmark", "best_epoch"}
 GOAL_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term and the validation goal-FDE
+
+# --- cvae artifact (a trained ForceFormer/AgentFormer CVAE) ---------------------------------------------
+CVAE_MODEL_FILE: Final = "model.pt"  # {"state_dict", "config", "forces_config", "benchmark", "best_epoch", ...}
+CVAE_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term, validation minADE/minFDE

@@ -83,9 +83,13 @@ class DecoderLayer(nn.Module):
         self.norms = nn.ModuleList(nn.LayerNorm(d_model) for _ in range(3))
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, memory: Tensor, masks: tuple[Tensor, Tensor, Tensor, Tensor]) -> Tensor:
+    def forward(
+        self, x: Tensor, memory: Tensor, masks: tuple[Tensor, Tensor, Tensor, Tensor], keys: Tensor | None = None
+    ) -> Tensor:
+        """keys: the self-attention keys when they are more than x (cached earlier steps + x)."""
         same_self, allowed_self, same_cross, allowed_cross = masks
-        x = self.norms[0](x + self.drop(self.self_attn(x, x, same_self, allowed_self)))
+        keys = x if keys is None else keys
+        x = self.norms[0](x + self.drop(self.self_attn(x, keys, same_self, allowed_self)))
         x = self.norms[1](x + self.drop(self.cross_attn(x, memory, same_cross, allowed_cross)))
         return self.norms[2](x + self.drop(self.ff(x)))
 
@@ -217,24 +221,30 @@ class ForceFormer(nn.Module):
 
         At step s the decoder reads every earlier step of every agent (and the same step of others) plus
         the whole context; its own outputs are fed back detached, through `features`, which also lets
-        ForceFormer recompute the forces from the predicted positions.
+        ForceFormer recompute the forces from the predicted positions. Each layer caches the inputs of
+        earlier steps, so a step costs one new row of attention instead of re-running the prefix
+        (identical outputs in eval mode; in training only the dropout draws differ from the official code).
         """
         B, A, _ = last_pos.shape
         Tp = context.shape[1] // A
+        device = agent_mask.device
+        cross = _token_masks(agent_mask, 1, Tp, causal=False)
+        own_token = torch.arange(A, device=device)
+        caches: list[list[Tensor]] = [[] for _ in self.decoder]
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
-        inputs: list[Tensor] = []
         outputs = []
         for step in range(steps):
-            inputs.append(torch.cat([features(positions, step), z], -1))
-            x = self.decoder_embed(torch.stack(inputs, 2))  # (B, (step+1)·A, D)
-            masks = (
-                *_token_masks(agent_mask, step + 1, step + 1, causal=True),
-                *_token_masks(agent_mask, step + 1, Tp, causal=False),
-            )
-            for layer in self.decoder:
-                x = layer(x, context, masks)
-            offset = self.out(x[:, -A:])  # (B, A, 2) the newest step
-            outputs.append(last_pos + offset)
+            tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
+            x = self.decoder_embed(tokens, first_step=step)  # (B, A, D)
+            n_keys = (step + 1) * A
+            same = own_token[:, None] == torch.arange(n_keys, device=device)[None, :] % A  # (A, n_keys)
+            allowed = agent_mask.repeat(1, step + 1)[:, None, :].expand(B, A, n_keys).clone()
+            allowed[:, own_token, step * A + own_token] = True  # a padded query sees itself only
+            for layer, cache in zip(self.decoder, caches):
+                keys = torch.cat([*cache, x], 1)
+                cache.append(x)
+                x = layer(x, context, (same, allowed, *cross), keys=keys)
+            outputs.append(last_pos + self.out(x))  # (B, A, 2)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
 
