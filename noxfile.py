@@ -60,3 +60,4 @@ def bench(session: nox.Session) -> None:
     session.install(*CONSTRAINTS, "-e", ".")
     session.run("python", "benchmarks/bench_ingest.py", *session.posargs)
     session.run("python", "benchmarks/bench_forces.py", *session.posargs)
+    session.run("python", "benchmarks/bench_cvae.py")

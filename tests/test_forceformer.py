@@ -111,7 +111,7 @@ def test_training_step_runs_forward_and_backward() -> None:
     k = 3
     rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
     z = Gaussian(rep(p.mu), rep(p.logvar)).sample(g)
-    samples = model.decode(z, rep(past[:, :, -1, :2]), rep(context), rep(mask), 12, position_features)
+    samples = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, position_features, repeat=k)
     parts = cvae_loss(recon, future[..., :2], q, p, samples.view(2, k, 4, 12, 2), mask, 2.0)
     parts.total.backward()
     assert recon.shape == (2, 4, 12, 2) and torch.isfinite(parts.total)

@@ -63,7 +63,7 @@ def sample(
     rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
     z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_)
     features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
-    out = model.decode(z, rep(prepared.past_pos[:, :, -1]), rep(tokens), rep(prepared.agent_mask), Tf, features)
+    out = model.decode(z, rep(prepared.past_pos[:, :, -1]), tokens, rep(prepared.agent_mask), Tf, features, repeat=k)
     return out.view(B, k, A, Tf, 2)
 
 

@@ -16,6 +16,17 @@ import torch
 from torch import Tensor, nn
 
 
+class Keys(NamedTuple):
+    """Projected keys of an attention: k, k_self and v, each (B, H, Lk, d_head)."""
+
+    k: Tensor
+    k_self: Tensor
+    v: Tensor
+
+    def extend(self, other: Keys) -> Keys:
+        return Keys(*(torch.cat([a, b], 2) for a, b in zip(self, other)))
+
+
 class AgentAwareAttention(nn.Module):
     """Multi-head attention with separate query/key projections for same-agent token pairs.
 
@@ -40,16 +51,24 @@ class AgentAwareAttention(nn.Module):
         B, L, D = x.shape
         return x.view(B, L, self.n_heads, self.d_head).transpose(1, 2)  # (B, H, L, dh)
 
-    def forward(self, query: Tensor, key: Tensor, same_agent: Tensor, allowed: Tensor) -> Tensor:
-        """query (B, Lq, D), key (B, Lk, D); same_agent (Lq, Lk) bool; allowed (B, Lq, Lk) bool."""
+    def keys(self, key: Tensor) -> Keys:
+        """Project key tokens (B, Lk, D) once; decoders cache these instead of re-projecting every step."""
+        return Keys(self._heads(self.k(key)), self._heads(self.k_self(key)), self._heads(self.v(key)))
+
+    def attend(self, query: Tensor, keys: Keys, same_agent: Tensor, allowed: Tensor) -> Tensor:
+        """query (B, Lq, D); keys projected; same_agent (Lq, Lk) bool; allowed (B, Lq, Lk) bool."""
         scale = 1 / math.sqrt(self.d_head)
-        other = self._heads(self.q(query)) @ self._heads(self.k(key)).transpose(-1, -2)
-        own = self._heads(self.q_self(query)) @ self._heads(self.k_self(key)).transpose(-1, -2)
+        other = self._heads(self.q(query)) @ keys.k.transpose(-1, -2)
+        own = self._heads(self.q_self(query)) @ keys.k_self.transpose(-1, -2)
         scores = torch.where(same_agent, own, other) * scale  # (B, H, Lq, Lk)
         scores = scores.masked_fill(~allowed[:, None], float("-inf"))
         weights = self.dropout(torch.softmax(scores, dim=-1))
-        mixed = (weights @ self._heads(self.v(key))).transpose(1, 2).flatten(2)  # (B, Lq, D)
+        mixed = (weights @ keys.v).transpose(1, 2).flatten(2)  # (B, Lq, D)
         return self.out(mixed)
+
+    def forward(self, query: Tensor, key: Tensor, same_agent: Tensor, allowed: Tensor) -> Tensor:
+        """query (B, Lq, D), key (B, Lk, D); same_agent (Lq, Lk) bool; allowed (B, Lq, Lk) bool."""
+        return self.attend(query, self.keys(key), same_agent, allowed)
 
 
 class _FeedForward(nn.Sequential):
@@ -84,13 +103,18 @@ class DecoderLayer(nn.Module):
         self.drop = nn.Dropout(dropout)
 
     def forward(
-        self, x: Tensor, memory: Tensor, masks: tuple[Tensor, Tensor, Tensor, Tensor], keys: Tensor | None = None
+        self,
+        x: Tensor,
+        memory: Tensor | Keys,
+        masks: tuple[Tensor, Tensor, Tensor, Tensor],
+        self_keys: Keys | None = None,
     ) -> Tensor:
-        """keys: the self-attention keys when they are more than x (cached earlier steps + x)."""
+        """memory: tokens or their projected keys; self_keys: cached projected keys (earlier steps + x)."""
         same_self, allowed_self, same_cross, allowed_cross = masks
-        keys = x if keys is None else keys
-        x = self.norms[0](x + self.drop(self.self_attn(x, keys, same_self, allowed_self)))
-        x = self.norms[1](x + self.drop(self.cross_attn(x, memory, same_cross, allowed_cross)))
+        self_keys = self.self_attn.keys(x) if self_keys is None else self_keys
+        memory_keys = memory if isinstance(memory, Keys) else self.cross_attn.keys(memory)
+        x = self.norms[0](x + self.drop(self.self_attn.attend(x, self_keys, same_self, allowed_self)))
+        x = self.norms[1](x + self.drop(self.cross_attn.attend(x, memory_keys, same_cross, allowed_cross)))
         return self.norms[2](x + self.drop(self.ff(x)))
 
 
@@ -215,22 +239,36 @@ class ForceFormer(nn.Module):
     # --- decode -----------------------------------------------------------------------------------
 
     def decode(
-        self, z: Tensor, last_pos: Tensor, context: Tensor, agent_mask: Tensor, steps: int, features: StepFeatures
+        self,
+        z: Tensor,
+        last_pos: Tensor,
+        context: Tensor,
+        agent_mask: Tensor,
+        steps: int,
+        features: StepFeatures,
+        repeat: int = 1,
     ) -> Tensor:
         """Autoregressive rollout: (B, A, steps, 2) positions, each an offset from the last observed one.
 
         At step s the decoder reads every earlier step of every agent (and the same step of others) plus
         the whole context; its own outputs are fed back detached, through `features`, which also lets
         ForceFormer recompute the forces from the predicted positions. Each layer caches the inputs of
-        earlier steps, so a step costs one new row of attention instead of re-running the prefix
-        (identical outputs in eval mode; in training only the dropout draws differ from the official code).
+        earlier steps' projected keys and values (and the context's, projected once), so a step costs one
+        new row of attention instead of re-running the prefix (identical outputs in eval mode; in
+        training only the dropout draws differ from the official code).
+
+        repeat: z, last_pos and agent_mask hold `repeat` samples per window (repeat_interleave order)
+        while context holds each window once; its keys are projected once and then repeated.
         """
         B, A, _ = last_pos.shape
         Tp = context.shape[1] // A
         device = agent_mask.device
         cross = _token_masks(agent_mask, 1, Tp, causal=False)
         own_token = torch.arange(A, device=device)
-        caches: list[list[Tensor]] = [[] for _ in self.decoder]
+        memory = [  # projected once per rollout and window, then shared by the window's samples
+            Keys(*(t.repeat_interleave(repeat, 0) for t in layer.cross_attn.keys(context))) for layer in self.decoder
+        ]
+        caches: list[Keys | None] = [None for _ in self.decoder]
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
         outputs = []
         for step in range(steps):
@@ -240,10 +278,11 @@ class ForceFormer(nn.Module):
             same = own_token[:, None] == torch.arange(n_keys, device=device)[None, :] % A  # (A, n_keys)
             allowed = agent_mask.repeat(1, step + 1)[:, None, :].expand(B, A, n_keys).clone()
             allowed[:, own_token, step * A + own_token] = True  # a padded query sees itself only
-            for layer, cache in zip(self.decoder, caches):
-                keys = torch.cat([*cache, x], 1)
-                cache.append(x)
-                x = layer(x, context, (same, allowed, *cross), keys=keys)
+            for index, layer in enumerate(self.decoder):
+                new = layer.self_attn.keys(x)
+                cached = caches[index]
+                caches[index] = new if cached is None else cached.extend(new)
+                x = layer(x, memory[index], (same, allowed, *cross), self_keys=caches[index])
             outputs.append(last_pos + self.out(x))  # (B, A, 2)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)

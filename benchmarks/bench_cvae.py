@@ -1,0 +1,92 @@
+"""Benchmark: CVAE training throughput, batched windows vs one window per step, same process and model.
+
+Run: `python3 -m nox -s bench` (or `python benchmarks/bench_cvae.py [--seconds 90] [--variant baseline]`).
+Both modes train the same d_model 256 model (AgentFormer's size, K = 20 best-of-K samples) on the same
+random zara1 training windows for a fixed time budget and report valid agent-windows per second. The
+official implementation's figure on this machine is 2.61 agent-windows/s (research/agentformer.md §10.1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+DEFAULT_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_ucy" / "raw"
+OFFICIAL_AGENT_WINDOWS_PER_S = 2.61
+
+
+def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
+    from fftool import cvae
+    from fftool.config import ForcesConfig
+    from fftool.trajfeatures import prepare
+
+    torch.manual_seed(0)
+    model = cvae.build_model(cfg).train()
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    gen = torch.Generator().manual_seed(0)
+    agents, start = 0, time.perf_counter()
+    for members in plan:
+        prepared = prepare(scenes.batch(members), cfg.variant, 8, rotate=True, generator=gen)
+        loss = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, gen).total
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        agents += int(prepared.agent_mask.sum())
+        if time.perf_counter() - start > seconds:
+            break
+    return agents / (time.perf_counter() - start), agents
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--raw", type=Path, default=DEFAULT_RAW)
+    parser.add_argument("--seconds", type=float, default=90.0)
+    parser.add_argument("--variant", default="baseline")
+    args = parser.parse_args()
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from fftool import pipeline
+    from fftool.batches import load_scene_set
+    from fftool.config import CVAEConfig, load_config
+    from fftool.store import ArtifactStore
+    from fftool.ui import err_console
+
+    err_console.quiet = True
+    with tempfile.TemporaryDirectory() as root:
+        built = pipeline.run(
+            load_config(None, [f"data.raw_dir={str(args.raw.resolve())!r}"]), ArtifactStore(root), ["forces"]
+        )
+        scenes = load_scene_set(built["windows"], built["forces"], "zara1", "train")
+    err_console.quiet = False
+    cfg = CVAEConfig(variant=args.variant)
+    rng = np.random.default_rng(0)
+    order = rng.permutation(scenes.windows)
+    batched_plan = scenes.plan(order, cfg.batch_windows, cfg.max_agent_pairs, rng)
+    single_plan = [np.array([w]) for w in np.concatenate(batched_plan)]  # the same windows, in the same order
+    batched, n_batched = _throughput(scenes, cfg, batched_plan, args.seconds)
+    single, n_single = _throughput(scenes, cfg, single_plan, args.seconds)
+
+    table = Table(title=f"CVAE training throughput, {args.variant}, d_model 256, K = 20, zara1 train, this CPU")
+    for column in ("mode", "agent-windows / s", "agent-windows done", "× official"):
+        table.add_column(column, justify="right" if column != "mode" else "left")
+    table.add_row(
+        "batched (≤ 32 windows, ≤ 4096 window·agent²)",
+        f"{batched:.2f}",
+        str(n_batched),
+        f"{batched / OFFICIAL_AGENT_WINDOWS_PER_S:.1f}",
+    )
+    table.add_row("one window per step", f"{single:.2f}", str(n_single), f"{single / OFFICIAL_AGENT_WINDOWS_PER_S:.1f}")
+    table.add_row("official AgentFormer (research/agentformer.md)", f"{OFFICIAL_AGENT_WINDOWS_PER_S:.2f}", "", "1.0")
+    table.caption = f"batched / one-window ratio: {batched / single:.1f}×; each mode ran about {args.seconds:.0f} s"
+    Console().print(table)
+
+
+if __name__ == "__main__":
+    main()
