@@ -111,6 +111,13 @@ def _bar_callback(bar: Any, task: Any) -> Callable[[str, int, int], None]:
     return lambda phase, done, total: bar.update(task, completed=done, total=total, description=phase)
 
 
+def _epoch_line(bar: Any) -> Callable[[dict[str, Any]], None]:
+    """One printed line per epoch, so logs show progress where no live bar is drawn (CI, nohup)."""
+    return lambda row: bar.console.print(
+        "  " + "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items())
+    )
+
+
 def _build_goal(
     cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
@@ -129,13 +136,6 @@ def _build_goal(
             on_progress=_bar_callback(bar, task),
             on_epoch=_epoch_line(bar),
         )
-
-
-def _epoch_line(bar: Any) -> Callable[[dict[str, Any]], None]:
-    """One printed line per epoch, so logs show progress where no live bar is drawn (CI, nohup)."""
-    return lambda row: bar.console.print(
-        "  " + "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items())
-    )
 
 
 def _build_cvae(
