@@ -47,31 +47,49 @@ def test_padded_agents_change_nothing() -> None:
     assert torch.isfinite(out2).all()
 
 
+def _reference_attention(attn: AgentAwareAttention, query, key, agents: int, allowed):
+    """Agent-aware attention the plain way: both full score matrices, chosen by a same-agent mask."""
+    same = (torch.arange(query.shape[1])[:, None] % agents) == (torch.arange(key.shape[1])[None, :] % agents)
+    heads = attn._heads
+    other = heads(attn.q(query)) @ heads(attn.k(key)).transpose(-1, -2)
+    own = heads(attn.q_self(query)) @ heads(attn.k_self(key)).transpose(-1, -2)
+    scores = torch.where(same, own, other) / attn.d_head**0.5
+    weights = torch.softmax(scores.masked_fill(~allowed[:, None], float("-inf")), -1)
+    return attn.out((weights @ heads(attn.v(key))).transpose(1, 2).flatten(2))
+
+
+@pytest.mark.parametrize(("t_query", "t_key", "causal"), [(2, 2, False), (3, 5, False), (1, 4, False), (4, 4, True)])
+def test_agent_aware_attention_matches_the_two_matrix_definition(t_query: int, t_key: int, causal: bool) -> None:
+    torch.manual_seed(0)
+    attn = AgentAwareAttention(16, 2, 0.0).eval()
+    agent_mask = torch.tensor([[True, True, True], [True, False, True]])
+    query, key = torch.randn(2, t_query * 3, 16), torch.randn(2, t_key * 3, 16)
+    allowed = _token_masks(agent_mask, t_query, t_key, causal)
+    if t_query != t_key:
+        allowed = allowed | torch.eye(t_query * 3, t_key * 3, dtype=torch.bool)  # no empty softmax row
+    torch.testing.assert_close(attn(query, key, 3, allowed), _reference_attention(attn, query, key, 3, allowed))
+
+
 def test_agent_aware_attention_separates_self_from_others() -> None:
     torch.manual_seed(0)
     attn = AgentAwareAttention(16, 2, 0.0).eval()
     x = torch.randn(1, 6, 16)
     allowed = torch.ones(1, 6, 6, dtype=torch.bool)
-    nobody_same = torch.zeros(6, 6, dtype=torch.bool)
-    same, _ = _token_masks(torch.ones(1, 3, dtype=torch.bool), 2, 2, causal=False)
-    assert not torch.allclose(attn(x, x, same, allowed), attn(x, x, nobody_same, allowed))
-    # with the self projections equal to the others', it is plain multi-head attention
-    attn.q_self.load_state_dict(attn.q.state_dict())
-    attn.k_self.load_state_dict(attn.k.state_dict())
-    torch.testing.assert_close(attn(x, x, same, allowed), attn(x, x, nobody_same, allowed))
     reference = torch.nn.MultiheadAttention(16, 2, batch_first=True)
     reference.in_proj_weight.data = torch.cat([attn.q.weight, attn.k.weight, attn.v.weight])
     reference.in_proj_bias.data = torch.cat([attn.q.bias, attn.k.bias, attn.v.bias])
     reference.out_proj.load_state_dict(attn.out.state_dict())
-    torch.testing.assert_close(
-        attn(x, x, same, allowed), reference(x, x, x, need_weights=False)[0], atol=1e-6, rtol=1e-5
-    )
+    plain = reference(x, x, x, need_weights=False)[0]
+    assert not torch.allclose(attn(x, x, 3, allowed), plain, atol=1e-4)  # own projections differ: not plain
+    # with the self projections equal to the others', it is plain multi-head attention
+    attn.q_self.load_state_dict(attn.q.state_dict())
+    attn.k_self.load_state_dict(attn.k.state_dict())
+    torch.testing.assert_close(attn(x, x, 3, allowed), plain, atol=1e-6, rtol=1e-5)
 
 
 def test_token_masks_are_time_major_and_causal() -> None:
     mask = torch.tensor([[True, True, False]])
-    same, allowed = _token_masks(mask, 2, 2, causal=True)
-    assert same[0, 3] and not same[0, 1]  # token 3 = (step 1, agent 0)
+    allowed = _token_masks(mask, 2, 2, causal=True)
     assert allowed[0, 4, 0] and allowed[0, 4, 3] and not allowed[0, 0, 4]  # step 1 sees step 0, not vice versa
     assert not allowed[0, 0, 2] and allowed[0, 2, 2]  # padded keys hidden; a padded query sees itself
 
@@ -127,9 +145,9 @@ def _decode_by_recomputation(model: ForceFormer, z, last_pos, context, mask, ste
     for step in range(steps):
         inputs.append(torch.cat([position_features(positions, step), z], -1))
         x = model.decoder_embed(torch.stack(inputs, 2))
-        masks = (*_token_masks(mask, step + 1, step + 1, causal=True), *_token_masks(mask, step + 1, Tp, causal=False))
+        masks = (_token_masks(mask, step + 1, step + 1, causal=True), _token_masks(mask, step + 1, Tp, causal=False))
         for layer in model.decoder:
-            x = layer(x, context, masks)
+            x = layer(x, context, A, masks)
         outputs.append(last_pos + model.out(x[:, -A:]))
         positions = torch.cat([positions, outputs[-1][:, :, None]], 2)
     return torch.stack(outputs, 2)

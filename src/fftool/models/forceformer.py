@@ -55,20 +55,30 @@ class AgentAwareAttention(nn.Module):
         """Project key tokens (B, Lk, D) once; decoders cache these instead of re-projecting every step."""
         return Keys(self._heads(self.k(key)), self._heads(self.k_self(key)), self._heads(self.v(key)))
 
-    def attend(self, query: Tensor, keys: Keys, same_agent: Tensor, allowed: Tensor) -> Tensor:
-        """query (B, Lq, D); keys projected; same_agent (Lq, Lk) bool; allowed (B, Lq, Lk) bool."""
-        scale = 1 / math.sqrt(self.d_head)
-        other = self._heads(self.q(query)) @ keys.k.transpose(-1, -2)
-        own = self._heads(self.q_self(query)) @ keys.k_self.transpose(-1, -2)
-        scores = torch.where(same_agent, own, other) * scale  # (B, H, Lq, Lk)
-        scores = scores.masked_fill(~allowed[:, None], float("-inf"))
+    def attend(self, query: Tensor, keys: Keys, agents: int, allowed: Tensor) -> Tensor:
+        """query (B, Lq, D) and keys in time-major layouts of `agents` slots; allowed (B, Lq, Lk) bool.
+
+        Same-agent scores are needed only where query and key belong to the same agent (1/A of the
+        pairs), so they are computed on that diagonal alone and written over the shared scores.
+        """
+        B, Lq, _ = query.shape
+        H, dh, Lk = self.n_heads, self.d_head, keys.k.shape[2]
+        scores = self._heads(self.q(query)) @ keys.k.transpose(-1, -2)  # (B, H, Lq, Lk)
+        own = torch.einsum(
+            "bhqad,bhkad->bhqka",
+            self._heads(self.q_self(query)).reshape(B, H, Lq // agents, agents, dh),
+            keys.k_self.reshape(B, H, Lk // agents, agents, dh),
+        )  # (B, H, Tq, Tk, A)
+        grid = scores.view(B, H, Lq // agents, agents, Lk // agents, agents)
+        torch.diagonal(grid, dim1=3, dim2=5).copy_(own)
+        scores = (scores / math.sqrt(dh)).masked_fill(~allowed[:, None], float("-inf"))
         weights = self.dropout(torch.softmax(scores, dim=-1))
         mixed = (weights @ keys.v).transpose(1, 2).flatten(2)  # (B, Lq, D)
         return self.out(mixed)
 
-    def forward(self, query: Tensor, key: Tensor, same_agent: Tensor, allowed: Tensor) -> Tensor:
-        """query (B, Lq, D), key (B, Lk, D); same_agent (Lq, Lk) bool; allowed (B, Lq, Lk) bool."""
-        return self.attend(query, self.keys(key), same_agent, allowed)
+    def forward(self, query: Tensor, key: Tensor, agents: int, allowed: Tensor) -> Tensor:
+        """query (B, Lq, D), key (B, Lk, D), both time-major over `agents` slots; allowed (B, Lq, Lk)."""
+        return self.attend(query, self.keys(key), agents, allowed)
 
 
 class _FeedForward(nn.Sequential):
@@ -86,8 +96,8 @@ class EncoderLayer(nn.Module):
         self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, same: Tensor, allowed: Tensor) -> Tensor:
-        x = self.norm1(x + self.drop(self.attn(x, x, same, allowed)))
+    def forward(self, x: Tensor, agents: int, allowed: Tensor) -> Tensor:
+        x = self.norm1(x + self.drop(self.attn(x, x, agents, allowed)))
         return self.norm2(x + self.drop(self.ff(x)))
 
 
@@ -106,15 +116,17 @@ class DecoderLayer(nn.Module):
         self,
         x: Tensor,
         memory: Tensor | Keys,
-        masks: tuple[Tensor, Tensor, Tensor, Tensor],
+        agents: int,
+        masks: tuple[Tensor, Tensor],
         self_keys: Keys | None = None,
     ) -> Tensor:
-        """memory: tokens or their projected keys; self_keys: cached projected keys (earlier steps + x)."""
-        same_self, allowed_self, same_cross, allowed_cross = masks
+        """memory: tokens or their projected keys; self_keys: cached projected keys (earlier steps + x);
+        masks: allowed pairs of the self- and the cross-attention."""
+        allowed_self, allowed_cross = masks
         self_keys = self.self_attn.keys(x) if self_keys is None else self_keys
         memory_keys = memory if isinstance(memory, Keys) else self.cross_attn.keys(memory)
-        x = self.norms[0](x + self.drop(self.self_attn.attend(x, self_keys, same_self, allowed_self)))
-        x = self.norms[1](x + self.drop(self.cross_attn.attend(x, memory_keys, same_cross, allowed_cross)))
+        x = self.norms[0](x + self.drop(self.self_attn.attend(x, self_keys, agents, allowed_self)))
+        x = self.norms[1](x + self.drop(self.cross_attn.attend(x, memory_keys, agents, allowed_cross)))
         return self.norms[2](x + self.drop(self.ff(x)))
 
 
@@ -144,16 +156,13 @@ class TimeEmbedding(nn.Module):
         return h.transpose(1, 2).reshape(B, T * A, -1)
 
 
-def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> tuple[Tensor, Tensor]:
-    """Same-agent pattern (Lq, Lk) and allowed pairs (B, Lq, Lk) for time-major token layouts.
+def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> Tensor:
+    """Allowed query-key pairs (B, Lq, Lk) for time-major token layouts.
 
     Keys of padded agents are never allowed; every query may see itself, so no softmax row is empty
     (padded queries see only themselves). With `causal`, a token at step s sees steps <= s of everyone.
     """
     B, A = agent_mask.shape
-    q_agent = torch.arange(t_query * A, device=agent_mask.device) % A
-    k_agent = torch.arange(t_key * A, device=agent_mask.device) % A
-    same = q_agent[:, None] == k_agent[None, :]
     allowed = agent_mask.repeat(1, t_key)[:, None, :].expand(B, t_query * A, t_key * A)
     if causal:
         q_step = torch.arange(t_query * A, device=agent_mask.device) // A
@@ -161,7 +170,7 @@ def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> 
         allowed = allowed & (k_step[None, :] <= q_step[:, None])
     if t_query == t_key:
         allowed = allowed | torch.eye(t_query * A, dtype=torch.bool, device=agent_mask.device)
-    return same, allowed
+    return allowed
 
 
 class Gaussian(NamedTuple):
@@ -218,9 +227,9 @@ class ForceFormer(nn.Module):
         """past (B, A, Tp, F) -> context tokens (B, Tp·A, D) and per-agent context (B, A, D)."""
         B, A, Tp, _ = past.shape
         x = self.past_embed(past)
-        same, allowed = _token_masks(agent_mask, Tp, Tp, causal=False)
+        allowed = _token_masks(agent_mask, Tp, Tp, causal=False)
         for layer in self.encoder:
-            x = layer(x, same, allowed)
+            x = layer(x, A, allowed)
         return x, x.view(B, Tp, A, -1).mean(1)
 
     def prior(self, agent_context: Tensor) -> Gaussian:
@@ -231,9 +240,9 @@ class ForceFormer(nn.Module):
         B, A, Tf, _ = future.shape
         Tp = context.shape[1] // A
         x = self.future_embed(future)
-        masks = (*_token_masks(agent_mask, Tf, Tf, causal=False), *_token_masks(agent_mask, Tf, Tp, causal=False))
+        masks = (_token_masks(agent_mask, Tf, Tf, causal=False), _token_masks(agent_mask, Tf, Tp, causal=False))
         for layer in self.future_encoder:
-            x = layer(x, context, masks)
+            x = layer(x, context, A, masks)
         return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).chunk(2, -1))
 
     # --- decode -----------------------------------------------------------------------------------
@@ -275,14 +284,13 @@ class ForceFormer(nn.Module):
             tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
             x = self.decoder_embed(tokens, first_step=step)  # (B, A, D)
             n_keys = (step + 1) * A
-            same = own_token[:, None] == torch.arange(n_keys, device=device)[None, :] % A  # (A, n_keys)
             allowed = agent_mask.repeat(1, step + 1)[:, None, :].expand(B, A, n_keys).clone()
             allowed[:, own_token, step * A + own_token] = True  # a padded query sees itself only
             for index, layer in enumerate(self.decoder):
                 new = layer.self_attn.keys(x)
                 cached = caches[index]
                 caches[index] = new if cached is None else cached.extend(new)
-                x = layer(x, memory[index], (same, allowed, *cross), self_keys=caches[index])
+                x = layer(x, memory[index], A, (allowed, cross), self_keys=caches[index])
             outputs.append(last_pos + self.out(x))  # (B, A, 2)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
