@@ -25,7 +25,7 @@ from fftool.config import CVAEConfig, ForcesConfig
 from fftool.models.forceformer import ForceFormer, Gaussian, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
-from fftool.training import generator, load_checkpoint, save_checkpoint, write_csv
+from fftool.training import generator, resume, save_checkpoint, save_progress, write_csv
 from fftool.trajfeatures import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features, prepare
 
 NAME: Final = "cvae"
@@ -146,17 +146,12 @@ def build(
     model = build_model(cfg).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.decay_every, gamma=cfg.decay_gamma)
-    state = load_checkpoint(scratch / "last.pt", device)
-    start_epoch, log, best = 0, [], {"ade": float("inf"), "epoch": -1, "state": None}
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        start_epoch, log, best = state["epoch"] + 1, state["log"], state["best"]
+    stateful = {"model": model, "optimizer": optimizer, "scheduler": scheduler}
+    progress = resume(scratch / "last.pt", device, stateful)
 
     n_windows = min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows
     started = time.perf_counter()
-    for epoch in range(start_epoch, cfg.epochs):
+    for epoch in range(progress.start_epoch, cfg.epochs):
         model.train()
         tic = time.perf_counter()
         torch.manual_seed(cfg.seed * 100_003 + epoch)  # dropout and sampling noise of this epoch
@@ -181,50 +176,33 @@ def build(
         scheduler.step()
         train_s = time.perf_counter() - tic
         ade, fde = validate(model, val, val_windows, cfg, forces_cfg, dt_s, obs_len, device)
-        log.append(
-            {
-                "epoch": epoch + 1,
-                "seconds": round(time.perf_counter() - tic, 3),
-                "agent_windows_per_s": round(agents / train_s, 2),
-                "lr": optimizer.param_groups[0]["lr"],
-                **{f"train_{name}": value for name, value in sums.items()},
-                f"val_min_ade@{cfg.k}_m": ade,
-                f"val_min_fde@{cfg.k}_m": fde,
-            }
-        )
+        row = {
+            "epoch": epoch + 1,
+            "seconds": round(time.perf_counter() - tic, 3),
+            "agent_windows_per_s": round(agents / train_s, 2),
+            "lr": optimizer.param_groups[0]["lr"],
+            **{f"train_{name}": value for name, value in sums.items()},
+            f"val_min_ade@{cfg.k}_m": ade,
+            f"val_min_fde@{cfg.k}_m": fde,
+        }
+        progress.record(row, ade, model)
         if on_epoch:
-            on_epoch(log[-1])
-        if ade < best["ade"]:
-            best = {
-                "ade": ade,
-                "epoch": epoch + 1,
-                "state": {k: v.detach().clone() for k, v in model.state_dict().items()},
-            }
-        save_checkpoint(
-            scratch / "last.pt",
-            {
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(),
-                "epoch": epoch,
-                "log": log,
-                "best": best,
-            },
-        )
+            on_epoch(row)
+        save_progress(scratch / "last.pt", progress, epoch, stateful)
 
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,
         {
-            "state_dict": best["state"],
+            "state_dict": progress.best_state,
             "config": cfg.model_dump(mode="json"),
             "forces_config": forces_cfg.model_dump(mode="json"),
             "benchmark": benchmark,
-            "best_epoch": best["epoch"],
+            "best_epoch": progress.best_epoch,
             "dt_s": dt_s,
             "obs_len": obs_len,
         },
     )
-    write_csv(out_dir / CVAE_LOG_FILE, log)
+    write_csv(out_dir / CVAE_LOG_FILE, progress.log)
     return {
         "benchmark": benchmark,
         "variant": cfg.variant,
@@ -232,12 +210,12 @@ def build(
         "train_windows": train.windows,
         "train_windows_per_epoch": n_windows,
         "val_windows": len(val_windows),
-        "best_epoch": best["epoch"],
-        f"best_val_min_ade@{cfg.k}_m": best["ade"],
-        "resumed_from_epoch": start_epoch,
+        "best_epoch": progress.best_epoch,
+        f"best_val_min_ade@{cfg.k}_m": progress.best_metric,
+        "resumed_from_epoch": progress.start_epoch,
         "seconds_this_run": time.perf_counter() - started,
         "parameters": sum(p.numel() for p in model.parameters()),
-        "log": log,
+        "log": progress.log,
     }
 
 

@@ -22,7 +22,7 @@ from fftool.goalnet import build_model, evaluate, goal_inputs, goal_loss
 from fftool.heatmaps import world_to_cells
 from fftool.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
 from fftool.store import Artifact
-from fftool.training import generator, load_checkpoint, save_checkpoint, seed_all, write_csv
+from fftool.training import generator, resume, save_checkpoint, save_progress, seed_all, write_csv
 
 NAME: Final = "goal"
 VERSION: Final = 1
@@ -64,18 +64,13 @@ def build(
 
     model = build_model(cfg, obs_len + scene_maps.channels).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    checkpoint_path = scratch / "last.pt"
-    state = load_checkpoint(checkpoint_path, device)
-    start_epoch, log, best = 0, [], {"fde": float("inf"), "epoch": -1, "state": None}
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        start_epoch, log, best = state["epoch"] + 1, state["log"], state["best"]
+    stateful = {"model": model, "optimizer": optimizer}
+    progress = resume(scratch / "last.pt", device, stateful)
 
     n_train = min(len(train), cfg.max_train) if cfg.max_train else len(train)
     batches = -(-n_train // cfg.batch_size)
     started = time.perf_counter()
-    for epoch in range(start_epoch, cfg.epochs):
+    for epoch in range(progress.start_epoch, cfg.epochs):
         model.train()
         tic = time.perf_counter()
         gen = generator(cfg.seed * 100_003 + epoch, torch.device("cpu"))
@@ -102,57 +97,41 @@ def build(
             if on_progress:
                 on_progress(f"epoch {epoch + 1}/{cfg.epochs}", b + 1, batches)
         fde_k, fde_1 = evaluate(model, val, val_scene, scene_maps, cfg, goals_cfg, device, cfg.seed, obs_len)
-        log.append(
-            {
-                "epoch": epoch + 1,
-                "seconds": round(time.perf_counter() - tic, 3),
-                "train_loss": sums["loss"],
-                "train_bce": sums["bce"],
-                "train_mse_cells2": sums["mse"],
-                f"val_goal_fde@{goals_cfg.k}_m": fde_k,
-                "val_goal_fde@1_m": fde_1,
-            }
-        )
+        row = {
+            "epoch": epoch + 1,
+            "seconds": round(time.perf_counter() - tic, 3),
+            "train_loss": sums["loss"],
+            "train_bce": sums["bce"],
+            "train_mse_cells2": sums["mse"],
+            f"val_goal_fde@{goals_cfg.k}_m": fde_k,
+            "val_goal_fde@1_m": fde_1,
+        }
+        progress.record(row, fde_k, model)
         if on_epoch:
-            on_epoch(log[-1])
-        if fde_k < best["fde"]:
-            best = {
-                "fde": fde_k,
-                "epoch": epoch + 1,
-                "state": {k: v.detach().clone() for k, v in model.state_dict().items()},
-            }
-        save_checkpoint(
-            checkpoint_path,
-            {
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "epoch": epoch,
-                "log": log,
-                "best": best,
-            },
-        )
+            on_epoch(row)
+        save_progress(scratch / "last.pt", progress, epoch, stateful)
 
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,
         {
-            "state_dict": best["state"],
+            "state_dict": progress.best_state,
             "in_channels": obs_len + scene_maps.channels,
             "config": cfg.model_dump(mode="json"),
             "benchmark": benchmark,
-            "best_epoch": best["epoch"],
+            "best_epoch": progress.best_epoch,
         },
     )
-    write_csv(out_dir / GOAL_LOG_FILE, log)
+    write_csv(out_dir / GOAL_LOG_FILE, progress.log)
     return {
         "benchmark": benchmark,
         "device": str(device),
         "train_agent_windows": len(train),
         "train_per_epoch": n_train,
         "val_agent_windows": len(val),
-        "best_epoch": best["epoch"],
-        f"best_val_goal_fde@{goals_cfg.k}_m": best["fde"],
+        "best_epoch": progress.best_epoch,
+        f"best_val_goal_fde@{goals_cfg.k}_m": progress.best_metric,
         "epochs": cfg.epochs,
-        "resumed_from_epoch": start_epoch,
+        "resumed_from_epoch": progress.start_epoch,
         "seconds_this_run": time.perf_counter() - started,
-        "log": log,
+        "log": progress.log,
     }

@@ -118,44 +118,47 @@ def _epoch_line(bar: Any) -> Callable[[dict[str, Any]], None]:
     )
 
 
+def _train(description: str, build: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
+    """Run a training stage with a live bar (per batch) and a printed line per epoch."""
+    with progress() as bar:
+        task = bar.add_task(description, total=None)
+        return build(*args, on_progress=_bar_callback(bar, task), on_epoch=_epoch_line(bar))
+
+
 def _build_goal(
     cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     assert benchmark is not None
-    with progress() as bar:
-        task = bar.add_task(f"train goal U-Net ({benchmark})", total=None)
-        return goal.build(
-            cfg.goal,
-            cfg.goals,
-            benchmark,
-            inputs["windows"],
-            inputs["maps"],
-            ctx.dir,
-            ctx.scratch,
-            runtime.torch_device(),
-            on_progress=_bar_callback(bar, task),
-            on_epoch=_epoch_line(bar),
-        )
+    return _train(
+        f"train goal U-Net ({benchmark})",
+        goal.build,
+        cfg.goal,
+        cfg.goals,
+        benchmark,
+        inputs["windows"],
+        inputs["maps"],
+        ctx.dir,
+        ctx.scratch,
+        runtime.torch_device(),
+    )
 
 
 def _build_cvae(
     cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     assert benchmark is not None
-    with progress() as bar:
-        task = bar.add_task(f"train CVAE {cfg.cvae.variant} ({benchmark})", total=None)
-        return cvae.build(
-            cfg.cvae,
-            cfg.forces,
-            benchmark,
-            inputs["windows"],
-            inputs["forces"],
-            ctx.dir,
-            ctx.scratch,
-            runtime.torch_device(),
-            on_progress=_bar_callback(bar, task),
-            on_epoch=_epoch_line(bar),
-        )
+    return _train(
+        f"train CVAE {cfg.cvae.variant} ({benchmark})",
+        cvae.build,
+        cfg.cvae,
+        cfg.forces,
+        benchmark,
+        inputs["windows"],
+        inputs["forces"],
+        ctx.dir,
+        ctx.scratch,
+        runtime.torch_device(),
+    )
 
 
 def _build_goals(

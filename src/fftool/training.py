@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import os
 import random
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -46,3 +47,39 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+
+
+@dataclass
+class Progress:
+    """What a resumable training carries from epoch to epoch: its log and the best weights so far."""
+
+    start_epoch: int = 0
+    log: list[dict[str, Any]] = field(default_factory=list)
+    best_metric: float = float("inf")
+    best_epoch: int = -1
+    best_state: dict[str, Any] | None = None
+
+    def record(self, row: dict[str, Any], metric: float, model: torch.nn.Module) -> None:
+        """Log an epoch; keep a copy of the weights when `metric` (lower is better) improves."""
+        self.log.append(row)
+        if metric < self.best_metric:
+            self.best_metric, self.best_epoch = metric, int(row["epoch"])
+            self.best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+def resume(path: Path, device: torch.device, stateful: dict[str, Any]) -> Progress:
+    """Restore model/optimizer/scheduler states from the last epoch checkpoint, if there is one."""
+    state = load_checkpoint(path, device)
+    if state is None:
+        return Progress()
+    for name, obj in stateful.items():
+        obj.load_state_dict(state["states"][name])
+    best = state["best"]
+    return Progress(state["epoch"] + 1, state["log"], best["metric"], best["epoch"], best["state"])
+
+
+def save_progress(path: Path, progress: Progress, epoch: int, stateful: dict[str, Any]) -> None:
+    """The end-of-epoch checkpoint `resume` reads (epoch is 0-based)."""
+    best = {"metric": progress.best_metric, "epoch": progress.best_epoch, "state": progress.best_state}
+    states = {name: obj.state_dict() for name, obj in stateful.items()}
+    save_checkpoint(path, {"states": states, "epoch": epoch, "log": progress.log, "best": best})
