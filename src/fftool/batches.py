@@ -44,8 +44,8 @@ class AgentWindows:
 
 def load_agent_windows(windows: Artifact, benchmark: str, part: str, stride: int = 1) -> AgentWindows:
     """Valid agent-windows of (benchmark, part); with stride > 1 only windows starting every stride steps."""
-    agents = pq.read_table(windows.file(AGENT_WINDOWS_FILE), columns=["benchmark", "part", "window_id", "ped_id"])
-    keys = agents.to_pandas()
+    agents = pq.read_table(windows.file(AGENT_WINDOWS_FILE))  # one read: keys and positions
+    keys = agents.select(["benchmark", "part", "window_id", "ped_id"]).to_pandas()
     rows = np.flatnonzero((keys["benchmark"] == benchmark).to_numpy() & (keys["part"] == part).to_numpy())
     table = pq.read_table(
         windows.file(WINDOWS_FILE), filters=[("benchmark", "=", benchmark), ("part", "=", part)]
@@ -56,9 +56,9 @@ def load_agent_windows(windows: Artifact, benchmark: str, part: str, stride: int
     source = table.loc[window_id, "source"].astype(str).to_numpy()
     keep = first_step % stride == 0
     rows = rows[keep]
-    xy_column = pq.read_table(windows.file(AGENT_WINDOWS_FILE), columns=["xy"]).column("xy").take(rows)
     window_len = int(windows.manifest.stats["window_len"])
-    xy = xy_column.combine_chunks().flatten().to_numpy().reshape(len(rows), window_len, 2).copy()  # writable
+    xy = agents.column("xy").take(rows).combine_chunks().flatten().to_numpy()
+    xy = xy.reshape(len(rows), window_len, 2).copy()  # writable
     return AgentWindows(
         xy=xy,
         source=source[keep],

@@ -200,13 +200,15 @@ def build(
     ).to_pandas()
     setup_s = time.perf_counter() - started
 
-    features, seconds = [], {}
+    results: dict[tuple[str, str], _Features] = {}
+    seconds: dict[str, float] = {}
     distinct = window_table.drop_duplicates(["source", "split", "first_step"])
-    for (source, split), rows in distinct.groupby(["source", "split"], observed=True, sort=True):
+    for (source, split), starts in distinct.groupby(["source", "split"], observed=True, sort=True):
         tic = time.perf_counter()
-        result = _compute_sequence(
-            sequences[(str(source), str(split))],
-            np.sort(rows["first_step"].to_numpy()),
+        key = (str(source), str(split))
+        results[key] = _compute_sequence(
+            sequences[key],
+            np.sort(starts["first_step"].to_numpy()),
             cfg,
             dt_s=dt_s,
             obs_len=obs_len,
@@ -214,54 +216,56 @@ def build(
             device=device,
         )
         seconds[f"{source}:{split}"] = time.perf_counter() - tic
-        features.append(
-            (
-                pd.DataFrame(
-                    {
-                        "source": str(source),
-                        "split": str(split),
-                        "first_step": result.first_step,
-                        "ped_id": result.ped_id,
-                    }
-                ),
-                result,
-            )
-        )
         if on_sequence:
-            on_sequence(f"{source}:{split}", len(rows))
+            on_sequence(f"{source}:{split}", len(starts))
 
-    keys = pd.concat([frame for frame, _ in features], ignore_index=True)
+    # Scatter the per-file results to the rows of agent_windows.parquet (shared files appear in many parts).
+    keys = pd.concat(
+        [
+            pd.DataFrame({"source": s, "split": p, "first_step": r.first_step, "ped_id": r.ped_id})
+            for (s, p), r in results.items()
+        ],
+        ignore_index=True,
+    )
     keys["feature_row"] = np.arange(len(keys))
     rows = agents.merge(window_table, on=["benchmark", "part", "window_id"], how="left", sort=False)
     rows["source"], rows["split"] = rows["source"].astype(str), rows["split"].astype(str)
     rows = rows.merge(keys, on=["source", "split", "first_step", "ped_id"], how="left", sort=False)
     assert rows["feature_row"].notna().all(), "every valid agent-window must have features"
     take = rows["feature_row"].to_numpy(dtype=np.int64)
+    arrays = {name: np.concatenate([r.arrays[name] for r in results.values()])[take] for name in FORCES_ARRAYS}
     for name, filename in FORCES_ARRAYS.items():
-        np.save(out_dir / filename, np.concatenate([r.arrays[name] for _, r in features])[take])
+        np.save(out_dir / filename, arrays[name])
     pq.write_table(
         pa.Table.from_pandas(agents[["benchmark", "part", "window_id", "ped_id"]], preserve_index=False),
         out_dir / FORCES_INDEX_FILE,
     )
-    stats = _summary(agents, rows, features, take, out_dir, seconds, setup_s, time.perf_counter() - started)
-    return {**stats, "dt_s": dt_s, "obs_len": obs_len}
+    return {
+        "summary": _summary(rows, results, arrays, seconds),
+        "seconds_total": time.perf_counter() - started,
+        "seconds_setup": setup_s,
+        "seconds_per_sequence": seconds,
+        "distinct_agent_windows": int(sum(r.first_step.size for r in results.values())),
+        "dt_s": dt_s,
+        "obs_len": obs_len,
+    }
 
 
-def _summary(agents, rows, features, take, out_dir, seconds, setup_s, total_s) -> dict[str, Any]:
-    f_dr = np.load(out_dir / FORCES_ARRAYS["f_dr"], mmap_mode="r")
-    f_re = np.load(out_dir / FORCES_ARRAYS["f_re"], mmap_mode="r")
-    dr_norm = np.linalg.norm(f_dr, axis=-1).mean(axis=1)  # (M,) mean over steps
-    re_norm = np.linalg.norm(f_re, axis=-1).mean(axis=1)
-    per_sequence_pairs = {}
-    for frame, result in features:
-        per_sequence_pairs[(frame["source"].iat[0], frame["split"].iat[0])] = (result.pairs, result.grouped_pairs)
+def _summary(
+    rows: pd.DataFrame,
+    results: dict[tuple[str, str], _Features],
+    arrays: dict[str, np.ndarray],
+    seconds: dict[str, float],
+) -> list[dict[str, Any]]:
+    """Per benchmark part: mean |F_dr|, |F_re|, share of pairs grouped, compute time of its files."""
+    dr_norm = np.linalg.norm(arrays["f_dr"], axis=-1).mean(axis=1)  # (M,) mean over steps
+    re_norm = np.linalg.norm(arrays["f_re"], axis=-1).mean(axis=1)
     summary = []
-    for (benchmark, part), group in agents.groupby(["benchmark", "part"], observed=True, sort=False):
-        index = group.index.to_numpy()
-        members = rows.loc[index, ["source", "split"]].drop_duplicates().itertuples(index=False)
-        members = [tuple(m) for m in members]
-        pairs = sum(per_sequence_pairs[m][0] for m in members)
-        grouped = sum(per_sequence_pairs[m][1] for m in members)
+    for (benchmark, part), group in rows.groupby(["benchmark", "part"], observed=True, sort=False):
+        index = group.index.to_numpy()  # rows keep agent_windows order
+        members = set(zip(group["source"], group["split"]))
+        pairs = sum(results[m].pairs for m in members)
+        grouped = sum(results[m].grouped_pairs for m in members)
         summary.append(
             {
                 "benchmark": str(benchmark),
@@ -273,10 +277,4 @@ def _summary(agents, rows, features, take, out_dir, seconds, setup_s, total_s) -
                 "seconds": sum(seconds[f"{s}:{p}"] for s, p in members),
             }
         )
-    return {
-        "summary": summary,
-        "seconds_total": total_s,
-        "seconds_setup": setup_s,
-        "seconds_per_sequence": seconds,
-        "distinct_agent_windows": int(sum(r.first_step.size for _, r in features)),
-    }
+    return summary

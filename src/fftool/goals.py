@@ -28,11 +28,6 @@ from fftool.training import generator
 NAME: Final = "goals"
 VERSION: Final = 1
 INPUTS: Final = ("goal", "windows", "maps")
-# Published goal-module FDE@20 (m) on ETH/UCY, research/goal_module.md §5.3.
-ANCHORS: Final = {
-    "Y-net": {"eth": 0.33, "hotel": 0.14, "univ": 0.41, "zara1": 0.27, "zara2": 0.22, "average": 0.27},
-    "Goal-SAR": {"eth": 0.39, "hotel": 0.17, "univ": 0.43, "zara1": 0.26, "zara2": 0.22, "average": 0.29},
-}
 
 
 def constant_velocity_goals(obs: Tensor, pred_len: int, k: int, cfg: GoalsConfig, gen: torch.Generator) -> Tensor:

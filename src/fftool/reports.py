@@ -139,7 +139,7 @@ def training_table(artifact: Artifact, what: str) -> Table:
 
 def goal_fde_table(goals: dict[str, Artifact]) -> Table:
     """Test goal-FDE@K per benchmark beside the constant-velocity reference and the published anchors."""
-    from fftool.goals import ANCHORS
+    from fftool.scenes import PUBLISHED_GOAL_FDE20
 
     first = next(iter(goals.values())).manifest.stats
     k = first["k"]
@@ -153,7 +153,7 @@ def goal_fde_table(goals: dict[str, Artifact]) -> Table:
         test = artifact.manifest.stats["parts"]["test"]
         row = [test[f"goal_fde@{k}_m"], test["goal_fde@1_m"], test[f"cv_fde@{k}_m"], test["cv_fde@1_m"]]
         values.append(row)
-        anchors = [ANCHORS[name][benchmark] for name in ("Y-net", "Goal-SAR")]
+        anchors = [PUBLISHED_GOAL_FDE20[name][benchmark] for name in ("Y-net", "Goal-SAR")]
         table.add_row(
             benchmark, *(f"{v:.3f}" for v in row), *(f"{v:.2f}" for v in anchors), f"{test['agent_windows']:,}"
         )

@@ -91,3 +91,10 @@ SOURCE_SCENE: Final[dict[str, str | None]] = {
     "uni_examples": None,
 }
 SCENES: Final[tuple[str, ...]] = ("eth", "hotel", "univ", "zara1", "zara2")
+
+# Published goal-module FDE@20 (m) on ETH/UCY: the targets for the goal estimator alone
+# (research/goal_module.md §5.3; both take the best of 20 goals, independently of the ADE minimum).
+PUBLISHED_GOAL_FDE20: Final[dict[str, dict[str, float]]] = {
+    "Y-net": {"eth": 0.33, "hotel": 0.14, "univ": 0.41, "zara1": 0.27, "zara2": 0.22, "average": 0.27},
+    "Goal-SAR": {"eth": 0.39, "hotel": 0.17, "univ": 0.43, "zara1": 0.26, "zara2": 0.22, "average": 0.29},
+}
