@@ -164,3 +164,18 @@ def test_cached_decoding_equals_recomputing_the_prefix() -> None:
         fast = model.decode(z, past[:, :, -1, :2], context, mask, 12, position_features)
         slow = _decode_by_recomputation(model, z, past[:, :, -1, :2], context, mask, 12)
     torch.testing.assert_close(fast[mask], slow[mask], atol=1e-5, rtol=1e-5)
+
+
+def test_sharing_the_context_between_samples_equals_repeating_it() -> None:
+    model = _model(6)
+    g = torch.Generator().manual_seed(3)
+    past = torch.randn(2, 3, 8, 4, generator=g)
+    mask = torch.tensor([[True, True, True], [True, False, False]])
+    context, _ = model.encode_past(past, mask)
+    k = 4
+    rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
+    z = torch.randn(2 * k, 3, 8, generator=g)
+    with torch.no_grad():
+        shared = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, position_features, repeat=k)
+        copied = model.decode(z, rep(past[:, :, -1, :2]), rep(context), rep(mask), 12, position_features)
+    torch.testing.assert_close(shared[rep(mask)], copied[rep(mask)], atol=1e-5, rtol=1e-5)

@@ -27,6 +27,31 @@ class Keys(NamedTuple):
         return Keys(*(torch.cat([a, b], 2) for a, b in zip(self, other)))
 
 
+class KeyCache:
+    """The self-attention keys of the steps decoded so far.
+
+    Without autograd the keys are written into buffers allocated once per rollout (no copying of the
+    prefix at every step); with autograd they are concatenated, since in-place writes would invalidate
+    the views that earlier steps saved for the backward pass.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity, self.length = capacity, 0
+        self.keys: Keys | None = None
+
+    def append(self, new: Keys) -> Keys:
+        n = new.k.shape[2]
+        if torch.is_grad_enabled():
+            self.keys = new if self.keys is None else self.keys.extend(new)
+        else:
+            if self.keys is None:
+                self.keys = Keys(*(t.new_empty(*t.shape[:2], self.capacity, t.shape[3]) for t in new))
+            for buffer, part in zip(self.keys, new):
+                buffer[:, :, self.length : self.length + n] = part
+        self.length += n
+        return Keys(*(t[:, :, : self.length] for t in self.keys))
+
+
 class AgentAwareAttention(nn.Module):
     """Multi-head attention with separate query/key projections for same-agent token pairs.
 
@@ -63,15 +88,16 @@ class AgentAwareAttention(nn.Module):
         """
         B, Lq, _ = query.shape
         H, dh, Lk = self.n_heads, self.d_head, keys.k.shape[2]
-        scores = self._heads(self.q(query)) @ keys.k.transpose(-1, -2)  # (B, H, Lq, Lk)
+        scale = 1 / math.sqrt(dh)  # on the queries: cheaper than on the (Lq, Lk) scores
+        scores = self._heads(self.q(query) * scale) @ keys.k.transpose(-1, -2)  # (B, H, Lq, Lk)
         own = torch.einsum(
             "bhqad,bhkad->bhqka",
-            self._heads(self.q_self(query)).reshape(B, H, Lq // agents, agents, dh),
+            self._heads(self.q_self(query) * scale).reshape(B, H, Lq // agents, agents, dh),
             keys.k_self.reshape(B, H, Lk // agents, agents, dh),
         )  # (B, H, Tq, Tk, A)
         grid = scores.view(B, H, Lq // agents, agents, Lk // agents, agents)
         torch.diagonal(grid, dim1=3, dim2=5).copy_(own)
-        scores = (scores / math.sqrt(dh)).masked_fill(~allowed[:, None], float("-inf"))
+        scores = scores.masked_fill(~allowed[:, None], float("-inf"))
         weights = self.dropout(torch.softmax(scores, dim=-1))
         mixed = (weights @ keys.v).transpose(1, 2).flatten(2)  # (B, Lq, D)
         return self.out(mixed)
@@ -119,14 +145,22 @@ class DecoderLayer(nn.Module):
         agents: int,
         masks: tuple[Tensor, Tensor],
         self_keys: Keys | None = None,
+        fold: int = 1,
     ) -> Tensor:
         """memory: tokens or their projected keys; self_keys: cached projected keys (earlier steps + x);
-        masks: allowed pairs of the self- and the cross-attention."""
+        masks: allowed pairs of the self- and the cross-attention.
+
+        fold: x holds `fold` samples per memory window (repeat_interleave order); the cross-attention
+        then reads them as one longer query of that window, so the memory is never copied per sample
+        (allowed_cross is (B / fold, fold · Lq, Lk)).
+        """
         allowed_self, allowed_cross = masks
         self_keys = self.self_attn.keys(x) if self_keys is None else self_keys
         memory_keys = memory if isinstance(memory, Keys) else self.cross_attn.keys(memory)
         x = self.norms[0](x + self.drop(self.self_attn.attend(x, self_keys, agents, allowed_self)))
-        x = self.norms[1](x + self.drop(self.cross_attn.attend(x, memory_keys, agents, allowed_cross)))
+        B, L, D = x.shape
+        crossed = self.cross_attn.attend(x.reshape(B // fold, fold * L, D), memory_keys, agents, allowed_cross)
+        x = self.norms[1](x + self.drop(crossed.reshape(B, L, D)))
         return self.norms[2](x + self.drop(self.ff(x)))
 
 
@@ -267,30 +301,29 @@ class ForceFormer(nn.Module):
         training only the dropout draws differ from the official code).
 
         repeat: z, last_pos and agent_mask hold `repeat` samples per window (repeat_interleave order)
-        while context holds each window once; its keys are projected once and then repeated.
+        while context holds each window once: its keys are projected once and every sample's query
+        attends to them without copies.
         """
         B, A, _ = last_pos.shape
         Tp = context.shape[1] // A
-        device = agent_mask.device
-        cross = _token_masks(agent_mask, 1, Tp, causal=False)
-        own_token = torch.arange(A, device=device)
-        memory = [  # projected once per rollout and window, then shared by the window's samples
-            Keys(*(t.repeat_interleave(repeat, 0) for t in layer.cross_attn.keys(context))) for layer in self.decoder
-        ]
-        caches: list[Keys | None] = [None for _ in self.decoder]
+        windows_mask = agent_mask[::repeat]  # (B / repeat, A)
+        cross = windows_mask.repeat(1, Tp)[:, None, :].expand(B // repeat, repeat * A, Tp * A)
+        memory = [layer.cross_attn.keys(context) for layer in self.decoder]  # once per rollout and window
+        caches = [KeyCache(steps * A) for _ in self.decoder]
+        # Step s may read every real agent's tokens of steps <= s; a padded query also sees itself.
+        allowed_all = agent_mask.repeat(1, steps)[:, None, :].expand(B, A, steps * A).clone()
+        own = torch.arange(A, device=agent_mask.device)
+        for step in range(steps):
+            allowed_all[:, own, step * A + own] = True
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
         outputs = []
         for step in range(steps):
             tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
             x = self.decoder_embed(tokens, first_step=step)  # (B, A, D)
-            n_keys = (step + 1) * A
-            allowed = agent_mask.repeat(1, step + 1)[:, None, :].expand(B, A, n_keys).clone()
-            allowed[:, own_token, step * A + own_token] = True  # a padded query sees itself only
-            for index, layer in enumerate(self.decoder):
-                new = layer.self_attn.keys(x)
-                cached = caches[index]
-                caches[index] = new if cached is None else cached.extend(new)
-                x = layer(x, memory[index], A, (allowed, cross), self_keys=caches[index])
+            allowed = allowed_all[:, :, : (step + 1) * A]
+            for layer, cache, keys in zip(self.decoder, caches, memory):
+                self_keys = cache.append(layer.self_attn.keys(x))
+                x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
             outputs.append(last_pos + self.out(x))  # (B, A, 2)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
