@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from typer.testing import CliRunner
@@ -12,6 +13,7 @@ from fftool import cvae, pipeline
 from fftool.batches import load_scene_set
 from fftool.cli import app
 from fftool.config import CVAEConfig, ForcesConfig, load_config
+from fftool.models.forceformer import Gaussian
 from fftool.store import ArtifactStore
 from fftool.trajfeatures import FEATURE_DIMS, prepare
 
@@ -105,3 +107,28 @@ def test_the_cli_trains_a_variant(raw_tree: Path, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "val_min_ade@3_m" in result.output
     assert runner.invoke(app, ["train-cvae", "--variant", "rx", *common]).exit_code == 2
+
+
+def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Loss and gradients of one padded batch equal the average of the official one-window steps."""
+    monkeypatch.setattr(Gaussian, "sample", lambda self, generator=None: self.mu + 0.3)  # no sampling noise
+    scenes = load_scene_set(inputs["windows"], inputs["forces"], "zara1", "train")
+    _, first = np.unique(scenes.agents(), return_index=True)
+    windows = np.r_[first, first[:1] + 1]  # one window per agent count (real padding) and a neighbour
+    assert len(first) > 1
+    cfg = TINY.model_copy(update={"variant": "re", "dropout": 0.0})
+    torch.manual_seed(0)
+    model = cvae.build_model(cfg)
+
+    def step(members: np.ndarray) -> tuple[float, list[torch.Tensor]]:
+        model.zero_grad()
+        prepared = prepare(scenes.batch(members), cfg.variant, 8)
+        loss = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator()).total
+        loss.backward()
+        return loss.item(), [p.grad.clone() for p in model.parameters()]
+
+    batched_loss, batched_grads = step(windows)
+    singles = [step(windows[i : i + 1]) for i in range(len(windows))]
+    assert batched_loss == pytest.approx(np.mean([loss for loss, _ in singles]), rel=1e-5)
+    for i, grad in enumerate(batched_grads):
+        torch.testing.assert_close(grad, torch.stack([g[i] for _, g in singles]).mean(0), atol=1e-5, rtol=1e-4)

@@ -336,26 +336,35 @@ class LossParts(NamedTuple):
     best_of_k: Tensor
 
 
+def _per_window(values: Tensor, agent_mask: Tensor) -> Tensor:
+    """(B, A) per-agent values -> (B,) mean over each window's real agents."""
+    return (values * agent_mask).sum(1) / agent_mask.sum(1).clamp_min(1)
+
+
 def best_of_k(samples: Tensor, future: Tensor, agent_mask: Tensor) -> Tensor:
-    """Mean over real agents of min over K of the squared error summed over steps and xy.
+    """Per window (B,): mean over real agents of min over K of the squared error summed over steps and xy.
 
     samples (B, K, A, T, 2), future (B, A, T, 2), agent_mask (B, A).
     """
     error = ((samples - future[:, None]) ** 2).sum((-1, -2))  # (B, K, A)
-    best = error.min(1).values  # (B, A) per agent, independently
-    return (best * agent_mask).sum() / agent_mask.sum().clamp_min(1)
+    return _per_window(error.min(1).values, agent_mask)  # min per agent, independently
 
 
 def cvae_loss(
     recon: Tensor, future: Tensor, q: Gaussian, p: Gaussian, samples: Tensor, agent_mask: Tensor, kl_min: float
 ) -> LossParts:
-    """AgentFormer's loss: squared error summed over time and xy, mean over agents; per-agent KL clamped
-    below at kl_min (free bits); best-of-K over prior samples; all weights 1."""
-    n = agent_mask.sum().clamp_min(1)
-    recon_term = (((recon - future) ** 2).sum((-1, -2)) * agent_mask).sum() / n
-    kl_term = ((kl_divergence(q, p) * agent_mask).sum() / n).clamp_min(kl_min)
+    """AgentFormer's loss, all weights 1: squared error summed over time and xy, mean over agents; the
+    window's mean KL clamped below at kl_min (free bits); best-of-K over prior samples.
+
+    Each term is computed per window exactly as the official one-window step does, then averaged over
+    the batch's windows: a batched step is the mean of the per-window steps.
+    """
+    recon_term = _per_window(((recon - future) ** 2).sum((-1, -2)), agent_mask)
+    kl_term = _per_window(kl_divergence(q, p), agent_mask).clamp_min(kl_min)
     sample_term = best_of_k(samples, future, agent_mask)
-    return LossParts(recon_term + kl_term + sample_term, recon_term, kl_term, sample_term)
+    real = agent_mask.any(1)
+    mean = lambda x: (x * real).sum() / real.sum().clamp_min(1)  # noqa: E731
+    return LossParts(mean(recon_term + kl_term + sample_term), mean(recon_term), mean(kl_term), mean(sample_term))
 
 
 def position_features(positions: Tensor, step: int) -> Tensor:
