@@ -21,12 +21,12 @@ OFFICIAL_AGENT_WINDOWS_PER_S = 2.61
 
 
 def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
-    from fftool import cvae
+    from fftool import cvae, cvaenet
     from fftool.config import ForcesConfig
     from fftool.trajfeatures import prepare
 
     torch.manual_seed(0)
-    model = cvae.build_model(cfg).train()
+    model = cvaenet.build_model(cfg).train()
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(0)
     agents, start = 0, time.perf_counter()

@@ -9,7 +9,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from fftool import cvae, pipeline
+from fftool import cvae, cvaenet, pipeline
 from fftool.batches import load_scene_set
 from fftool.cli import app
 from fftool.config import CVAEConfig, ForcesConfig, load_config
@@ -53,7 +53,7 @@ def test_every_variant_trains_and_reloads(inputs: dict, tmp_path: Path, variant:
     assert [row["epoch"] for row in stats["log"]] == [1, 2]
     assert all(row["val_min_ade@3_m"] > 0 for row in stats["log"])
     artifact = type("A", (), {"file": lambda self, name: tmp_path / variant / name})()
-    model, cfg, _ = cvae.load_model(artifact, torch.device("cpu"))
+    model, cfg, _ = cvaenet.load_model(artifact, torch.device("cpu"))
     assert cfg.variant == variant and model.past_embed.inp.in_features == FEATURE_DIMS[variant]
 
 
@@ -118,7 +118,7 @@ def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatc
     assert len(first) > 1
     cfg = TINY.model_copy(update={"variant": "re", "dropout": 0.0})
     torch.manual_seed(0)
-    model = cvae.build_model(cfg)
+    model = cvaenet.build_model(cfg)
 
     def step(members: np.ndarray) -> tuple[float, list[torch.Tensor]]:
         model.zero_grad()

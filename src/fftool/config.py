@@ -173,6 +173,38 @@ class CVAEConfig(_Section):
     seed: int = 0
 
 
+class EvaluateConfig(_Section):
+    """Test-time sampling and metrics (ForceFormer §IV-C; definitions in docs/metrics.md)."""
+
+    # cvae: the trained model of the `cvae` section's variant; cv: the constant-velocity reference.
+    predictor: Literal["cvae", "cv"] = "cvae"
+    # Where goal variants get their goal: paper (sampled goal closest to the truth), fair (sample k
+    # uses goal k), oracle (the true end point). The baseline and cv read no goal.
+    protocol: Literal["paper", "fair", "oracle"] = "paper"
+    k: int = Field(20, gt=0)
+    part: Literal["test", "val"] = "test"
+    collision_threshold_m: float = Field(0.1, gt=0)  # γ (paper); pairs closer than this collide
+    cv_angle_std_deg: float = Field(15.0, ge=0)  # cv samples 1..K-1: heading noise
+    cv_speed_std: float = Field(0.2, ge=0)  # and speed factor noise
+    batch_windows: int = Field(32, gt=0)  # windows per forward pass (speed only: results do not change)
+    max_agent_pairs: int = Field(2048, gt=0)  # windows × agents² per pass (smaller passes are faster on CPU)
+    seed: int = 0
+
+
+Benchmark = Literal["eth", "hotel", "univ", "zara1", "zara2"]
+
+
+class ReportConfig(_Section):
+    """What `ablate` and `reproduce` cover and how the tables count (not part of any fingerprint)."""
+
+    benchmarks: tuple[Benchmark, ...] = ("eth", "hotel", "univ", "zara1", "zara2")
+    variants: tuple[Literal["goal", "dr", "re"], ...] = ("goal", "dr", "re")  # baseline always included
+    collision_pairs: Literal["ordered", "unordered"] = "ordered"  # the paper's sum is over m != n
+    collision_sample: Literal["best_ade", "joint"] = "best_ade"  # per-agent best-ADE (paper) or one per window
+    constant_velocity: bool = True  # add the cv reference rows
+    out_dir: str = "reports"  # relative to the artifact root unless absolute
+
+
 class PipelineConfig(_Section):
     """The whole pipeline's configuration, as resolved from defaults, a file and overrides."""
 
@@ -184,6 +216,8 @@ class PipelineConfig(_Section):
     goal: GoalConfig = GoalConfig()
     goals: GoalsConfig = GoalsConfig()
     cvae: CVAEConfig = CVAEConfig()
+    evaluate: EvaluateConfig = EvaluateConfig()
+    report: ReportConfig = ReportConfig()
 
 
 def _parse_value(text: str) -> Any:

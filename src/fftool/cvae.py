@@ -22,49 +22,16 @@ import torch
 
 from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
-from fftool.models.forceformer import ForceFormer, Gaussian, cvae_loss
+from fftool.cvaenet import build_model, sample
+from fftool.models.forceformer import ForceFormer, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
 from fftool.training import generator, resume, save_checkpoint, save_progress, write_csv
-from fftool.trajfeatures import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features, prepare
+from fftool.trajfeatures import Prepared, decoder_features, prepare
 
 NAME: Final = "cvae"
 VERSION: Final = 1
 INPUTS: Final = ("windows", "forces")
-
-
-def build_model(cfg: CVAEConfig) -> ForceFormer:
-    return ForceFormer(
-        input_dim=FEATURE_DIMS[cfg.variant],
-        decoder_dim=DECODER_DIMS[cfg.variant],
-        d_model=cfg.d_model,
-        n_heads=cfg.n_heads,
-        d_ff=cfg.d_ff,
-        dropout=cfg.dropout,
-        n_layers=cfg.n_layers,
-        z_dim=cfg.z_dim,
-    )
-
-
-def sample(
-    model: ForceFormer,
-    prepared: Prepared,
-    cfg: CVAEConfig,
-    forces_cfg: ForcesConfig,
-    dt_s: float,
-    k: int,
-    generator_: torch.Generator | None = None,
-    context: tuple[torch.Tensor, torch.Tensor] | None = None,
-) -> torch.Tensor:
-    """K futures per agent from the prior: (B, K, A, Tf, 2) in the normalised frame."""
-    B, A, Tf, _ = prepared.future_pos.shape
-    tokens, agent_context = context or model.encode_past(prepared.past, prepared.agent_mask)
-    prior = model.prior(agent_context)
-    rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
-    z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_)
-    features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
-    out = model.decode(z, rep(prepared.past_pos[:, :, -1]), tokens, rep(prepared.agent_mask), Tf, features, repeat=k)
-    return out.view(B, k, A, Tf, 2)
 
 
 def training_loss(
@@ -217,12 +184,3 @@ def build(
         "parameters": sum(p.numel() for p in model.parameters()),
         "log": progress.log,
     }
-
-
-def load_model(cvae: Artifact, device: torch.device) -> tuple[ForceFormer, CVAEConfig, ForcesConfig]:
-    """Rebuild a trained model from its artifact alone."""
-    saved = torch.load(cvae.file(CVAE_MODEL_FILE), map_location=device, weights_only=True)
-    cfg = CVAEConfig.model_validate(saved["config"])
-    model = build_model(cfg).to(device)
-    model.load_state_dict(saved["state_dict"])
-    return model.eval(), cfg, ForcesConfig.model_validate(saved["forces_config"])

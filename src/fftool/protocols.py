@@ -1,0 +1,91 @@
+"""What a predictor may see at test time: goals per protocol, past forces, and the constant-velocity reference.
+
+Goal protocols (docs/metrics.md):
+    paper  - the sampled goal closest to the ground-truth end point, then K CVAE samples with it
+             (reads the ground truth, as the paper does);
+    fair   - sample k uses sampled goal k (never reads the ground-truth future);
+    oracle - the true end point (an upper bound, "planning" mode).
+
+Test-time inputs never use stored forces: the past F_dr and F_re are recomputed from the observed
+positions and the goal the protocol hands out, with the same functions as the `forces` stage, so no
+ground-truth goal leaks through them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import torch
+from torch import Tensor
+
+from fftool.batches import SceneBatch
+from fftool.config import ForcesConfig
+from fftool.socialforce import desired_speed, finite_difference_velocity, social_forces
+
+PROTOCOLS: Final = ("paper", "fair", "oracle")
+
+
+def protocol_goals(protocol: str, sampled: Tensor | None, truth_end: Tensor) -> Tensor:
+    """Goals (B, K, A, 2) for each sample: sampled (B, A, K, 2) world goals, truth_end (B, A, 2).
+
+    paper and oracle give every sample the same goal; fair gives sample k goal k.
+    """
+    if protocol == "oracle":
+        return truth_end[:, None].expand(-1, sampled.shape[2] if sampled is not None else 1, -1, -1)
+    if sampled is None:
+        raise ValueError(f"protocol {protocol!r} needs sampled goals")
+    if protocol == "paper":
+        closest = torch.linalg.vector_norm(sampled - truth_end[:, :, None], dim=-1).argmin(-1)  # (B, A)
+        chosen = sampled.gather(2, closest[..., None, None].expand(-1, -1, 1, 2))[:, :, 0]
+        return chosen[:, None].expand(-1, sampled.shape[2], -1, -1)
+    if protocol == "fair":
+        return sampled.transpose(1, 2)
+    raise ValueError(f"unknown goal protocol {protocol!r}; one of {', '.join(PROTOCOLS)}")
+
+
+def with_past_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: float, obs_len: int) -> SceneBatch:
+    """The batch with F_dr, F_re of the observed steps recomputed toward `goal` (B, A, 2) and the
+    future steps zeroed (the sampler never reads them; the decoder recomputes its own)."""
+    past = batch.xy[:, :, :obs_len]
+    present = batch.agent_mask[:, :, None].expand(-1, -1, obs_len)
+    velocity = finite_difference_velocity(past, present, dt_s, obs_len)
+    speed0 = desired_speed(velocity, present, obs_len, cfg)
+    groups = (batch.group[:, :, None] == batch.group[:, None, :]) & (batch.group[:, :, None] >= 0)
+    groups &= ~torch.eye(groups.shape[-1], dtype=torch.bool, device=groups.device)
+    f_dr, f_re = social_forces(past, present, goal, velocity, speed0, groups, cfg)
+    future = torch.zeros_like(batch.f_dr[:, :, obs_len:])
+    return SceneBatch(
+        xy=batch.xy,
+        agent_mask=batch.agent_mask,
+        f_dr=torch.cat([f_dr, future], 2),
+        f_re=torch.cat([f_re, future], 2),
+        speed0=batch.speed0,
+        group=batch.group,
+        row=batch.row,
+    )
+
+
+def repeat_windows(batch: SceneBatch, k: int) -> SceneBatch:
+    """Each window k times in a row (repeat_interleave order), e.g. one copy per goal of the fair protocol."""
+    return SceneBatch(*(getattr(batch, f).repeat_interleave(k, 0) for f in batch.__dataclass_fields__))
+
+
+def constant_velocity(
+    past: Tensor, pred_len: int, k: int, angle_std_deg: float, speed_std: float, gen: torch.Generator
+) -> Tensor:
+    """K futures (B, K, A, T, 2) of the last observed velocity, sample 0 exact, the others with a random
+    heading turn and speed factor (Schöller et al. 2020's multi-sample constant-velocity model).
+
+    past (B, A, Tp, 2) world positions.
+    """
+    B, A = past.shape[:2]
+    velocity = past[:, :, -1] - past[:, :, -2]  # metres per step, (B, A, 2)
+    angle = torch.randn(B, k, A, generator=gen, device=past.device) * math.radians(angle_std_deg)
+    speed = (1 + torch.randn(B, k, A, generator=gen, device=past.device) * speed_std).clamp_min(0)
+    angle[:, 0], speed[:, 0] = 0.0, 1.0
+    cos, sin = torch.cos(angle), torch.sin(angle)
+    vx, vy = velocity[:, None, :, 0], velocity[:, None, :, 1]
+    turned = torch.stack([cos * vx - sin * vy, sin * vx + cos * vy], -1) * speed[..., None]  # (B, K, A, 2)
+    steps = torch.arange(1, pred_len + 1, device=past.device, dtype=past.dtype)
+    return past[:, None, :, -1, None, :] + steps[None, None, None, :, None] * turned[:, :, :, None, :]
