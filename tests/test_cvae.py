@@ -53,7 +53,7 @@ def test_every_variant_trains_and_reloads(inputs: dict, tmp_path: Path, variant:
     assert [row["epoch"] for row in stats["log"]] == [1, 2]
     assert all(row["val_min_ade@3_m"] > 0 for row in stats["log"])
     artifact = type("A", (), {"file": lambda self, name: tmp_path / variant / name})()
-    model, cfg, _ = cvaenet.load_model(artifact, torch.device("cpu"))
+    model, cfg, _, _ = cvaenet.load_model(artifact, torch.device("cpu"))
     assert cfg.variant == variant and model.past_embed.inp.in_features == FEATURE_DIMS[variant]
 
 

@@ -312,6 +312,189 @@ def train_cvae(
     out_console.print(training_table(built["cvae"], f"CVAE {variant}"))
 
 
+def _check_predictor(value: str) -> str:
+    if value not in ("cv", "baseline", "goal", "dr", "re"):
+        raise typer.BadParameter(f"{value!r} is not one of cv, baseline, goal, dr, re")
+    return value
+
+
+def _check_protocol(value: str) -> str:
+    if value not in ("paper", "fair", "oracle"):
+        raise typer.BadParameter(f"{value!r} is not one of paper, fair, oracle")
+    return value
+
+
+def _check_variants(value: str) -> str:
+    names = tuple(v.strip() for v in value.split(",") if v.strip())
+    unknown = [name for name in names if name not in ("baseline", "goal", "dr", "re")]
+    if unknown:
+        raise typer.BadParameter(f"unknown variant(s) {', '.join(unknown)}; choose from goal, dr, re")
+    return ",".join(name for name in names if name != "baseline")
+
+
+ProtocolOption = Annotated[
+    str | None,
+    typer.Option(
+        "--protocol",
+        help="Goal protocol of goal variants: paper (sampled goal closest to the truth), fair (sample k uses "
+        "goal k), oracle (true goal). Default: evaluate.protocol of the config (paper).",
+        callback=lambda v: v if v is None else _check_protocol(v),
+        show_default=False,
+    ),
+]
+VariantsOption = Annotated[
+    str | None,
+    typer.Option(
+        "--variants",
+        help="Comma-separated ForceFormer variants besides the baseline (always included): goal, dr, re. "
+        "Default: report.variants of the config (all three).",
+        callback=lambda v: v if v is None else _check_variants(v),
+        show_default=False,
+    ),
+]
+OptionalBenchmarks = Annotated[
+    str | None,
+    typer.Option(
+        "--benchmarks",
+        help="Comma-separated benchmarks, or all. Default: report.benchmarks of the config (all five).",
+        callback=lambda v: v if v is None else _check_benchmarks(v),
+        show_default=False,
+    ),
+]
+
+
+@app.command(
+    epilog="Examples:\n\n  fftool evaluate --benchmarks zara1 --variant dr --protocol paper -c pipelines/quick.toml\n\n"
+    "  fftool evaluate --benchmarks all --variant cv      # the constant-velocity reference"
+)
+@_boundary
+def evaluate(
+    benchmarks: BenchmarksOption = "zara1",
+    variant: Annotated[
+        str,
+        typer.Option(
+            "--variant",
+            help="The trained CVAE of this variant (baseline, goal, dr, re), or cv, the constant-velocity reference.",
+            callback=_check_predictor,
+        ),
+    ] = "baseline",
+    protocol: ProtocolOption = None,
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Sample K futures per test agent-window; minADE/minFDE and collisions; predictions saved as Parquet."""
+    from fftool.reports import evaluation_table
+    from fftool.ui import out_console
+
+    overrides = [*(set_ or []), f"evaluate.predictor={'cv' if variant == 'cv' else 'cvae'!r}"]
+    if variant != "cv":
+        overrides.append(f"cvae.variant={variant!r}")
+    if protocol:
+        overrides.append(f"evaluate.protocol={protocol!r}")
+    built = [
+        _run_stages(["evaluate"], config, overrides, root, force, device, benchmark)["evaluate"]
+        for benchmark in benchmarks.split(",")
+    ]
+    out_console.print(evaluation_table(built))
+
+
+def _ablation(
+    config: Path | None,
+    set_: list[str] | None,
+    benchmarks: str | None,
+    variants: str | None,
+    protocol: str | None,
+    device: str,
+    root: Path | None,
+    out: Path | None,
+    command: str,
+) -> None:
+    """ablate and reproduce: build every evaluation through the DAG, then write and print the tables."""
+    import time
+
+    from fftool import ablation, pipeline
+    from fftool.config import load_config
+    from fftool.reports import report_tables
+    from fftool.ui import log, out_console
+
+    started = time.perf_counter()
+    overrides = [*(set_ or [])]
+    if protocol:
+        overrides.append(f"evaluate.protocol={protocol!r}")
+    cfg = load_config(config, overrides)
+    chosen_benchmarks = benchmarks.split(",") if benchmarks else list(cfg.report.benchmarks)
+    chosen_variants = variants.split(",") if variants is not None else list(cfg.report.variants)
+    store = _store(root)
+    results = ablation.run(
+        cfg,
+        store,
+        pipeline.Runtime(device=device),
+        chosen_benchmarks,
+        [v for v in chosen_variants if v],
+        on_cell=lambda b, p: log(f"[bold]{b} / {p}[/]"),
+    )
+    profile = config.stem if config else "defaults"
+    out_dir = out or store.root / cfg.report.out_dir / profile  # an absolute out_dir replaces the root
+    report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started)
+    for table in report_tables(report.parent):
+        out_console.print(table)
+    log(f"report: {report} ({(time.perf_counter() - started) / 60:.1f} min)")
+
+
+OutOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--out", file_okay=False, help="Report folder. Default: <root>/reports/<profile>.", show_default=False
+    ),
+]
+
+
+@app.command(epilog="Example: fftool ablate --variants goal,dr,re --benchmarks zara1 -c pipelines/quick.toml")
+@_boundary
+def ablate(
+    variants: VariantsOption = None,
+    benchmarks: OptionalBenchmarks = None,
+    protocol: ProtocolOption = None,
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    out: OutOption = None,
+) -> None:
+    """Train what is missing, evaluate baseline + variants (+ cv), write Tables II-IV as md, csv and tex."""
+    import sys
+
+    _ablation(config, set_, benchmarks, variants, protocol, device, root, out, "fftool " + " ".join(sys.argv[1:]))
+
+
+@app.command(
+    epilog="Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # ~15 min on a 2-core CPU\n\n"
+    "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU"
+)
+@_boundary
+def reproduce(
+    pipeline_file: Annotated[
+        Path, typer.Argument(metavar="PIPELINE", exists=True, dir_okay=False, help="A profile in pipelines/.")
+    ],
+    benchmarks: OptionalBenchmarks = None,
+    variants: VariantsOption = None,
+    protocol: ProtocolOption = None,
+    device: DeviceOption = "auto",
+    set_: SetOption = None,
+    root: RootOption = None,
+    out: OutOption = None,
+) -> None:
+    """The whole DAG from raw files to the paper's tables; stages already built are reused."""
+    import sys
+
+    _ablation(
+        pipeline_file, set_, benchmarks, variants, protocol, device, root, out, "fftool " + " ".join(sys.argv[1:])
+    )
+
+
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")
 @_boundary
 def fetch_data(

@@ -5,6 +5,8 @@ Shared by the `cvae` stage (validation), `evaluate` and `plot`, which never impo
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 
 from fftool.config import CVAEConfig, ForcesConfig
@@ -48,10 +50,17 @@ def sample(
     return out.view(B, k, A, Tf, 2)
 
 
-def load_model(cvae: Artifact, device: torch.device) -> tuple[ForceFormer, CVAEConfig, ForcesConfig]:
+class Trained(NamedTuple):
+    model: ForceFormer  # in eval mode
+    config: CVAEConfig
+    forces_config: ForcesConfig  # the force constants it decodes with
+    dt_s: float  # the time step its forces were computed with
+
+
+def load_model(cvae: Artifact, device: torch.device) -> Trained:
     """Rebuild a trained model from its artifact alone."""
     saved = torch.load(cvae.file(CVAE_MODEL_FILE), map_location=device, weights_only=True)
     cfg = CVAEConfig.model_validate(saved["config"])
     model = build_model(cfg).to(device)
     model.load_state_dict(saved["state_dict"])
-    return model.eval(), cfg, ForcesConfig.model_validate(saved["forces_config"])
+    return Trained(model.eval(), cfg, ForcesConfig.model_validate(saved["forces_config"]), float(saved["dt_s"]))

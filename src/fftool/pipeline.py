@@ -5,6 +5,7 @@
     scene images + homographies ──▶ maps ──▶ goal (per benchmark) ──▶ goals (per benchmark)
                                    windows ──┘
     windows + forces ──▶ cvae (per benchmark and variant)
+    windows + forces (+ cvae, + goals, as the predictor needs) ──▶ evaluate (per benchmark)
 
 Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
 fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
@@ -21,7 +22,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from fftool import cvae, forces, goal, goals, ingest, maps, windows
+from fftool import cvae, evaluate, forces, goal, goals, ingest, maps, windows
 from fftool.config import PipelineConfig
 from fftool.errors import FftoolError
 from fftool.hashing import fingerprint
@@ -61,6 +62,11 @@ class Stage:
     build: Builder
     external_inputs: Callable[[PipelineConfig], dict[str, str]] = lambda cfg: {}
     per_benchmark: bool = False  # one artifact per leave-one-out benchmark (the benchmark is a parameter)
+    # Upstream stages that depend on the configuration (a subset of `inputs`); default: all of them.
+    needs: Callable[[PipelineConfig], tuple[str, ...]] | None = None
+
+    def inputs_for(self, cfg: PipelineConfig | None) -> tuple[str, ...]:
+        return self.inputs if self.needs is None or cfg is None else self.needs(cfg)
 
 
 def _build_tracks(
@@ -179,6 +185,25 @@ def _build_goals(
         )
 
 
+def _build_evaluate(
+    cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
+) -> dict[str, Any]:
+    assert benchmark is not None
+    with progress() as bar:
+        task = bar.add_task(f"evaluate ({benchmark})", total=None)
+        return evaluate.build(
+            cfg.evaluate,
+            benchmark,
+            inputs["windows"],
+            inputs["forces"],
+            inputs.get("cvae"),
+            inputs.get("goals"),
+            ctx.dir,
+            runtime.torch_device(),
+            on_progress=_bar_callback(bar, task),
+        )
+
+
 STAGES: dict[str, Stage] = {
     stage.name: stage
     for stage in (
@@ -229,19 +254,29 @@ STAGES: dict[str, Stage] = {
             _build_cvae,
             per_benchmark=True,
         ),
+        Stage(
+            evaluate.NAME,
+            evaluate.VERSION,
+            ("windows", "forces", "cvae", "goals"),
+            "fftool evaluate",
+            lambda cfg: cfg.evaluate,
+            _build_evaluate,
+            per_benchmark=True,
+            needs=evaluate.inputs,
+        ),
     )
 }
 
 
-def plan(targets: Iterable[str]) -> list[Stage]:
-    """Stages needed for `targets`, upstream first (DAG post-order), each once."""
+def plan(targets: Iterable[str], cfg: PipelineConfig | None = None) -> list[Stage]:
+    """Stages needed for `targets` (under `cfg`, when inputs depend on it), upstream first, each once."""
     ordered: list[Stage] = []
 
     def visit(name: str) -> None:
         if name not in STAGES:
             raise FftoolError(f"unknown stage {name!r}; stages: {', '.join(STAGES)}")
         stage = STAGES[name]
-        for upstream in stage.inputs:
+        for upstream in stage.inputs_for(cfg):
             visit(upstream)
         if stage not in ordered:
             ordered.append(stage)
@@ -264,13 +299,13 @@ class Resolved:
 def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None = None) -> list[Resolved]:
     """Plan `targets` and fingerprint each stage; upstream fingerprints chain into downstream ones."""
     resolved: dict[str, Resolved] = {}
-    for stage in plan(targets):
+    for stage in plan(targets, cfg):
         params = stage.section(cfg).model_dump(mode="json")
         if stage.per_benchmark:
             if benchmark not in BENCHMARKS:
                 raise FftoolError(f"stage {stage.name!r} needs a benchmark, one of {', '.join(BENCHMARKS)}")
             params["benchmark"] = benchmark
-        inputs = {name: resolved[name].fingerprint for name in stage.inputs} | stage.external_inputs(cfg)
+        inputs = {name: resolved[name].fingerprint for name in stage.inputs_for(cfg)} | stage.external_inputs(cfg)
         resolved[stage.name] = Resolved(stage, params, inputs, fingerprint(stage.name, stage.version, params, inputs))
     return list(resolved.values())
 
@@ -304,7 +339,7 @@ def run(
             continue
         log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
         with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
-            inputs = {name: built[name] for name in stage.inputs}
+            inputs = {name: built[name] for name in stage.inputs_for(cfg)}
             ctx.stats = stage.build(cfg, inputs, ctx, runtime or Runtime(), benchmark)
         assert ctx.artifact is not None
         log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")

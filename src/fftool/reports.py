@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from rich import box
 from rich.table import Table
 
@@ -167,3 +169,51 @@ def goal_fde_table(goals: dict[str, Artifact]) -> Table:
     )
     table.caption_justify = "left"
     return table
+
+
+def evaluation_table(artifacts: list[Artifact]) -> Table:
+    """One row per evaluation: predictor, protocol, minADE/minFDE, NC, size and speed."""
+    table = Table(title="evaluation", title_justify="left", box=box.SIMPLE_HEAD, caption_justify="left")
+    for name in ("benchmark", "predictor", "protocol", "K", "minADE (m)", "minFDE (m)", "NC", "agent-windows", "aw/s"):
+        table.add_column(name, justify="left" if name in ("benchmark", "predictor", "protocol") else "right")
+    for artifact in artifacts:
+        s = artifact.manifest.stats
+        table.add_row(
+            s["benchmark"],
+            s["variant"],
+            s["protocol"],
+            str(s["k"]),
+            f"{s['min_ade']:.3f}",
+            f"{s['min_fde']:.3f}",
+            str(s["nc"]["best_ade"]["ordered"]),
+            f"{s['agent_windows']:,}",
+            f"{s['agent_windows_per_s']:.0f}",
+        )
+    if artifacts:
+        s = artifacts[0].manifest.stats
+        table.caption = (
+            f"{s['part']} part; NC: ordered pairs-steps closer than {s['collision_threshold_m']} m, best-ADE samples "
+            f"(paper); artifacts: {', '.join(a.id for a in artifacts)}"
+        )
+    return table
+
+
+def report_tables(report_dir: Path) -> list[Table]:
+    """The report's Tables II-IV (read back from their CSV files) as rich tables."""
+    import pandas as pd
+
+    tables = []
+    for stem, title in (
+        ("table2_ade_fde", "Table II: minADE/minFDE (m), ours and (paper)"),
+        ("table3_fde", "Table III: minFDE (m) per variant"),
+        ("table4_collisions", "Table IV: number of collisions"),
+    ):
+        frame = pd.read_csv(report_dir / f"{stem}.csv", dtype=str).fillna("")
+        table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
+        for i, column in enumerate(frame.columns):
+            table.add_column(column.replace(" (paper)", "\n(paper)"), justify="left" if i == 0 else "right",
+                             style="dim" if "(paper)" in column else None)  # fmt: skip
+        for row in frame.itertuples(index=False):
+            table.add_row(*row)
+        tables.append(table)
+    return tables

@@ -108,3 +108,9 @@ GOAL_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term and the v
 # --- cvae artifact (a trained ForceFormer/AgentFormer CVAE) ---------------------------------------------
 CVAE_MODEL_FILE: Final = "model.pt"  # {"state_dict", "config", "forces_config", "benchmark", "best_epoch", ...}
 CVAE_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term, validation minADE/minFDE
+
+# --- evaluate artifact (one predictor scored on one benchmark part) ------------------------------------
+# predictions.parquet: one row per valid agent-window in agent_windows order: window_id, ped_id,
+# agent_row, n_agents, per-agent min_ade/min_fde/best_k/collisions/joint_collisions, goal (K·2) and
+# pred (K·T·2, sample-major) in world metres. The manifest holds the summary metrics and definitions.
+PREDICTIONS_FILE: Final = "predictions.parquet"

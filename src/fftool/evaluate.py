@@ -1,0 +1,237 @@
+"""Evaluate a predictor on one benchmark's test part: K samples per valid agent-window, minADE/minFDE, NC.
+
+Reads: windows, forces (for group ids and the observed-step layout), and, for the CVAE predictor, the
+trained `cvae` artifact and, for goal variants under the paper or fair protocol, the sampled `goals`.
+Writes: `evaluate/<fp>/predictions.parquet` (every sample of every agent-window, with its per-agent
+metrics, so tables can be recomputed without sampling again) and the summary in the manifest.
+Run: `fftool evaluate --benchmark zara1 --variant dr --protocol paper`.
+
+Sampling batches many windows per forward pass (padded agents, masked attention), draws the K samples
+of a window in one pass with the context shared between samples, and recomputes the social forces
+from the predicted positions at every decoding step.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import torch
+
+from fftool.batches import SceneBatch, SceneSet, load_scene_set
+from fftool.config import EvaluateConfig, PipelineConfig
+from fftool.cvaenet import load_model, sample
+from fftool.errors import FftoolError
+from fftool.metrics import agent_metrics, collision_count
+from fftool.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
+from fftool.schema import GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE
+from fftool.store import Artifact
+from fftool.training import generator
+from fftool.trajfeatures import prepare
+
+NAME: Final = "evaluate"
+VERSION: Final = 1
+
+METRIC_DEFINITIONS: Final = {
+    "min_ade": "mean over agent-windows of min over K samples of the mean over the T future steps of the "
+    "unsquared Euclidean error (m)",
+    "min_fde": "mean over agent-windows of min over K samples of the error at step T (m), independent of the ADE min",
+    "nc": "sum over windows of the (m, n, t) with m != n real agents of the window and ||y_m^t - y_n^t|| < gamma, "
+    "each agent on its best-ADE sample (paper); ordered pairs (each contact twice); unordered = ordered / 2; "
+    "joint = one sample per window, the one with the smallest summed ADE",
+}
+
+
+def inputs(cfg: PipelineConfig) -> tuple[str, ...]:
+    """Upstream stages of an evaluation: only what its predictor and protocol actually read."""
+    if cfg.evaluate.predictor == "cv":
+        return ("windows", "forces")
+    if cfg.cvae.variant == "baseline" or cfg.evaluate.protocol == "oracle":
+        return ("windows", "forces", "cvae")
+    return ("windows", "forces", "cvae", "goals")
+
+
+def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
+    """(M, K, 2) sampled goals aligned with the scene set's agent-windows (checked key by key)."""
+    index = pq.read_table(goals.file(GOALS_INDEX_FILE)).to_pandas()
+    rows = np.flatnonzero((index["benchmark"] == benchmark).to_numpy() & (index["part"] == part).to_numpy())
+    if len(rows) != len(scenes.data) or not (
+        np.array_equal(index["window_id"].to_numpy()[rows], scenes.data.window_id)
+        and np.array_equal(index["ped_id"].to_numpy()[rows], scenes.data.ped_id)
+    ):
+        raise FftoolError(
+            f"{goals.file(GOALS_INDEX_FILE)}: the goals of {benchmark}/{part} do not match the windows artifact "
+            f"({len(rows)} goal rows for {len(scenes.data)} agent-windows); rebuild with fftool sample-goals"
+        )
+    return np.load(goals.file(GOALS_FILE), mmap_mode="r")[rows]
+
+
+class Predictor:
+    """K world-frame futures (B, K, A, T, 2) and the goals they used (B, K, A, 2) for a padded batch."""
+
+    def __init__(
+        self,
+        cfg: EvaluateConfig,
+        cvae: Artifact | None,
+        sampled_goals: np.ndarray | None,
+        obs_len: int,
+        pred_len: int,
+        device: torch.device,
+    ) -> None:
+        self.cfg, self.obs_len, self.pred_len, self.device = cfg, obs_len, pred_len, device
+        self.sampled_goals = sampled_goals
+        self.gen = generator(cfg.seed, device)
+        self.model = None
+        self.variant = "cv"
+        if cvae is not None:
+            self.model, self.model_cfg, self.forces_cfg, self.dt_s = load_model(cvae, device)
+            self.variant = self.model_cfg.variant
+
+    @property
+    def protocol(self) -> str:
+        """The goal protocol actually used: none for predictors that read no goal."""
+        return "none" if self.variant in ("cv", "baseline") else self.cfg.protocol
+
+    def goals(self, batch: SceneBatch, positions: np.ndarray) -> torch.Tensor:
+        """(B, K, A, 2) world goals per sample under the protocol; the last observed position when unused."""
+        k = self.cfg.k
+        if self.protocol == "none":
+            return batch.xy[:, None, :, self.obs_len - 1].expand(-1, k, -1, -1)
+        sampled = None
+        if self.sampled_goals is not None:
+            safe = np.where(positions >= 0, positions, 0)
+            sampled = torch.as_tensor(self.sampled_goals[safe], dtype=torch.float32, device=self.device)
+            if sampled.shape[2] != k:
+                raise FftoolError(f"the goals artifact holds {sampled.shape[2]} goals per agent, evaluate.k is {k}")
+        return protocol_goals(self.protocol, sampled, batch.xy[:, :, -1]).expand(-1, k, -1, -1)
+
+    def __call__(self, batch: SceneBatch, goals: torch.Tensor) -> torch.Tensor:
+        k, obs_len = self.cfg.k, self.obs_len
+        if self.model is None:
+            cfg = self.cfg
+            past = batch.xy[:, :, :obs_len]
+            return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
+        B, _, A, _ = goals.shape
+        if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
+            batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
+        else:
+            goal, draws = goals[:, 0], k
+        batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
+        prepared = prepare(batch, self.variant, obs_len, goal=goal)
+        futures = sample(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen)
+        return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
+
+
+def _real_agents(values: torch.Tensor, mask: np.ndarray) -> np.ndarray:
+    """(B, A, ...) -> (real agents, ...) in window-major order."""
+    return values.cpu().numpy()[mask]
+
+
+def _predictions_table(columns: dict[str, np.ndarray], k: int, pred_len: int) -> pa.Table:
+    flat = lambda a, n: pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1), pa.float32()), n)  # noqa: E731
+    return pa.table(
+        {
+            "window_id": pa.array(columns["window_id"], pa.int64()),
+            "ped_id": pa.array(columns["ped_id"], pa.int64()),
+            "agent_row": pa.array(columns["row"], pa.int64()),  # row of the windows artifact's agent_windows
+            "n_agents": pa.array(columns["n_agents"], pa.int32()),  # valid agents in the window
+            "min_ade": pa.array(columns["min_ade"], pa.float32()),
+            "min_fde": pa.array(columns["min_fde"], pa.float32()),
+            "best_k": pa.array(columns["best_k"], pa.int16()),
+            "collisions": pa.array(columns["collisions"], pa.int32()),
+            "joint_collisions": pa.array(columns["joint_collisions"], pa.int32()),
+            "goal": flat(columns["goal"], 2 * k),  # (K, 2) the goal of each sample, world metres
+            "pred": flat(columns["pred"], 2 * k * pred_len),  # (K, T, 2) sample-major, world metres
+        }
+    )
+
+
+def build(
+    cfg: EvaluateConfig,
+    benchmark: str,
+    windows: Artifact,
+    forces: Artifact,
+    cvae: Artifact | None,
+    goals: Artifact | None,
+    out_dir: Path,
+    device: torch.device,
+    on_progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Sample, score and save every valid agent-window of the benchmark's evaluation part."""
+    obs_len = int(windows.manifest.stats["obs_len"])
+    pred_len = int(windows.manifest.stats["pred_len"])
+    scenes = load_scene_set(windows, forces, benchmark, cfg.part)
+    if scenes.windows == 0:
+        raise FftoolError(f"{benchmark}/{cfg.part} has no valid agent-windows to evaluate")
+    sampled = load_sampled_goals(goals, scenes, benchmark, cfg.part) if goals is not None else None
+    predictor = Predictor(cfg, cvae, sampled, obs_len, pred_len, device)
+    rng = np.random.default_rng(cfg.seed)
+    plan = scenes.plan(np.arange(scenes.windows), cfg.batch_windows, cfg.max_agent_pairs, rng)
+    parts: dict[str, list[np.ndarray]] = {}
+    started = time.perf_counter()
+    with torch.no_grad():
+        for done, members in enumerate(plan):
+            batch = scenes.batch(members).to(device)
+            positions = np.searchsorted(scenes.data.row, batch.row.cpu().numpy())
+            positions = np.where(batch.row.cpu().numpy() >= 0, positions, -1)
+            goals_k = predictor.goals(batch, positions)
+            futures = predictor(batch, goals_k)
+            metrics = agent_metrics(futures, batch.xy[:, :, obs_len:], batch.agent_mask, cfg.collision_threshold_m)
+            mask = batch.agent_mask.cpu().numpy()
+            take = partial(_real_agents, mask=mask)
+            found = {
+                "row": take(batch.row),
+                "n_agents": np.broadcast_to(mask.sum(1, keepdims=True), mask.shape)[mask],
+                "min_ade": take(metrics.min_ade),
+                "min_fde": take(metrics.min_fde),
+                "best_k": take(metrics.best_k),
+                "collisions": take(metrics.collisions),
+                "joint_collisions": take(metrics.joint_collisions),
+                "goal": take(goals_k.transpose(1, 2)),
+                "pred": take(futures.transpose(1, 2)),
+            }
+            for name, values in found.items():
+                parts.setdefault(name, []).append(values)
+            if on_progress:
+                on_progress(f"evaluate {predictor.variant} ({benchmark})", done + 1, len(plan))
+    seconds = time.perf_counter() - started
+    columns = {name: np.concatenate(values) for name, values in parts.items()}
+    order = np.argsort(columns["row"])
+    columns = {name: values[order] for name, values in columns.items()}
+    position = np.searchsorted(scenes.data.row, columns["row"])
+    columns["window_id"], columns["ped_id"] = scenes.data.window_id[position], scenes.data.ped_id[position]
+    pq.write_table(_predictions_table(columns, cfg.k, pred_len), out_dir / PREDICTIONS_FILE)
+    return summary(columns, cfg, benchmark, predictor.variant, predictor.protocol) | {
+        "windows": scenes.windows,
+        "device": str(device),
+        "seconds": round(seconds, 2),
+        "agent_windows_per_s": round(len(order) / seconds, 1),
+    }
+
+
+def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str, variant: str, protocol: str) -> dict:
+    """The manifest's metrics: means over agent-windows and every NC variant, with their definitions."""
+    collisions, joint = torch.as_tensor(columns["collisions"]), torch.as_tensor(columns["joint_collisions"])
+    return {
+        "benchmark": benchmark,
+        "part": cfg.part,
+        "variant": variant,
+        "protocol": protocol,
+        "k": cfg.k,
+        "seed": cfg.seed,
+        "collision_threshold_m": cfg.collision_threshold_m,
+        "agent_windows": len(columns["min_ade"]),
+        "min_ade": float(np.mean(columns["min_ade"])),
+        "min_fde": float(np.mean(columns["min_fde"])),
+        "nc": {
+            "best_ade": {pairs: collision_count(collisions, pairs) for pairs in ("ordered", "unordered")},
+            "joint": {pairs: collision_count(joint, pairs) for pairs in ("ordered", "unordered")},
+        },
+        "definitions": METRIC_DEFINITIONS,
+    }
