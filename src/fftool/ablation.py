@@ -19,6 +19,7 @@ import torch
 
 from fftool import pipeline, tables
 from fftool.config import PipelineConfig
+from fftool.schema import PREDICTIONS_FILE
 from fftool.store import ArtifactStore
 
 PREDICTORS = ("cv", "baseline", "goal", "dr", "re")
@@ -63,6 +64,40 @@ def run(
     return results
 
 
+def figures(
+    cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path, windows_per_figure: int = 3
+) -> list[Path]:
+    """The density curves of every benchmark and a qualitative figure per benchmark for a report."""
+    import pandas as pd
+
+    from fftool import plots
+    from fftool.batches import load_agent_windows
+
+    frames: dict[str, dict[str, pd.DataFrame]] = {}
+    for r in results:
+        folder = store.resolve(r["artifact"])
+        frames.setdefault(r["benchmark"], {})[r["variant"]] = pd.read_parquet(folder.file(PREDICTIONS_FILE))
+    written = [plots.density_curves(frames, out_dir / "density.png")]
+    windows = store.resolve(_windows_id(store, results))
+    obs_len = int(windows.manifest.stats["obs_len"])
+    for benchmark, by_predictor in frames.items():
+        k = next(r["k"] for r in results if r["benchmark"] == benchmark)
+        evaluations = [plots.Evaluation(p, k, f) for p, f in by_predictor.items() if p != "cv"]
+        data = load_agent_windows(windows, benchmark, cfg.evaluate.part)
+        chosen = plots.pick_windows(evaluations, windows_per_figure)
+        out = out_dir / f"qualitative_{benchmark}.png"
+        written.append(plots.qualitative(evaluations, data, chosen, Path(cfg.data.scenes_dir), obs_len, False, out))
+    return written
+
+
+def _windows_id(store: ArtifactStore, results: list[dict[str, Any]]) -> str:
+    """The windows artifact the evaluations were built from (one per report)."""
+    inputs = {store.resolve(r["artifact"]).manifest.inputs["windows"] for r in results}
+    if len(inputs) != 1:
+        raise ValueError(f"the evaluations come from {len(inputs)} different windows artifacts")
+    return f"windows/{inputs.pop()[:16]}"
+
+
 def _id(artifact: Any) -> str | None:
     return None if artifact is None else artifact.id
 
@@ -79,7 +114,13 @@ def caption(cfg: PipelineConfig, profile: str) -> str:
 
 
 def write_report(
-    cfg: PipelineConfig, results: list[dict[str, Any]], out_dir: Path, profile: str, command: str, seconds: float
+    cfg: PipelineConfig,
+    results: list[dict[str, Any]],
+    out_dir: Path,
+    profile: str,
+    command: str,
+    seconds: float,
+    draw: Callable[[Path], list[Path]] | None = None,
 ) -> Path:
     """Tables II-IV (md, csv, tex), results.csv and report.md; the old report is replaced only when complete."""
     frame = tables.results_frame(results, cfg.report.collision_pairs, cfg.report.collision_sample)
@@ -90,6 +131,9 @@ def write_report(
     try:
         tables.write(built, partial, _preamble(command, seconds, results))
         frame.assign(artifact=[r["artifact"] for r in results]).to_csv(partial / "results.csv", index=False)
+        if draw:
+            with (partial / "report.md").open("a") as report:
+                report.writelines(f"\n![{path.stem}]({path.name})\n" for path in draw(partial))
         old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
         if out_dir.exists():
             out_dir.rename(old)

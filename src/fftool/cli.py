@@ -438,7 +438,8 @@ def _ablation(
     )
     profile = config.stem if config else "defaults"
     out_dir = out or store.root / cfg.report.out_dir / profile  # an absolute out_dir replaces the root
-    report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started)
+    draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
+    report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started, draw)
     for table in report_tables(report.parent):
         out_console.print(table)
     log(f"report: {report} ({(time.perf_counter() - started) / 60:.1f} min)")
@@ -493,6 +494,68 @@ def reproduce(
     _ablation(
         pipeline_file, set_, benchmarks, variants, protocol, device, root, out, "fftool " + " ".join(sys.argv[1:])
     )
+
+
+@app.command(
+    epilog="Examples:\n\n  fftool plot --benchmark zara1 --variants baseline,dr,re -c pipelines/quick.toml\n\n"
+    "  fftool plot --benchmark eth --windows 12,40 --best --out figures/"
+)
+@_boundary
+def plot(
+    benchmark: BenchmarkOption = "zara1",
+    variants: Annotated[
+        str, typer.Option("--variants", help="Predictors side by side: baseline, goal, dr, re, cv.")
+    ] = "baseline,dr,re",
+    windows: Annotated[
+        str | None,
+        typer.Option("--windows", help="Comma-separated window ids. Default: where the predictors differ most."),
+    ] = None,
+    count: Annotated[int, typer.Option("--count", min=1, help="Windows to pick when --windows is not given.")] = 3,
+    best: Annotated[bool, typer.Option("--best", help="Draw each agent's best-ADE sample only, not all K.")] = False,
+    protocol: ProtocolOption = None,
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    out: Annotated[Path, typer.Option("--out", file_okay=False, help="Folder for the PNG files.")] = Path("figures"),
+) -> None:
+    """Draw predictions over the scene image (like the paper's Fig. 3) and minFDE/collisions vs density.
+
+    Reads the saved predictions of each predictor's evaluation (evaluated first if only the model exists).
+    """
+    import pandas as pd
+
+    from fftool import ablation, pipeline, plots
+    from fftool.batches import load_agent_windows
+    from fftool.config import load_config
+    from fftool.schema import PREDICTIONS_FILE
+    from fftool.ui import log
+
+    predictors = [_check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
+    overrides = [*(set_ or []), *([f"evaluate.protocol={protocol!r}"] if protocol else [])]
+    cfg, store = load_config(config, overrides), _store(root)
+    runtime = pipeline.Runtime(device=device)
+    evaluations, frames, windows_artifact = [], {}, None
+    for predictor in predictors:
+        cell = ablation.predictor_config(cfg, predictor)
+        built = pipeline.run(cell, store, ["evaluate"], runtime=runtime, upstream=False, benchmark=benchmark)
+        frames[predictor] = pd.read_parquet(built["evaluate"].file(PREDICTIONS_FILE))
+        evaluations.append(plots.Evaluation(predictor, cfg.evaluate.k, frames[predictor]))
+        windows_artifact = built["windows"]
+    assert windows_artifact is not None
+    data = load_agent_windows(windows_artifact, benchmark, cfg.evaluate.part)
+    chosen = [int(w) for w in windows.split(",")] if windows else plots.pick_windows(evaluations, count)
+    unknown = sorted(set(chosen) - set(data.window_id.tolist()))
+    if unknown:
+        raise FftoolError(f"--windows: {unknown} are not window ids of {benchmark}/{cfg.evaluate.part}")
+    out.mkdir(parents=True, exist_ok=True)
+    obs_len = int(windows_artifact.manifest.stats["obs_len"])
+    scenes_dir = Path(cfg.data.scenes_dir)
+    figure = plots.qualitative(
+        evaluations, data, chosen, scenes_dir, obs_len, best, out / f"qualitative_{benchmark}.png"
+    )
+    curves = plots.density_curves({benchmark: frames}, out / f"density_{benchmark}.png")
+    log(f"wrote {figure} (windows {', '.join(map(str, chosen))}) and {curves}")
 
 
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")

@@ -47,7 +47,7 @@ def channel_names(cfg: MapsConfig) -> list[str]:
     return ["inside", "obstacle", *(f"colour{k}" for k in range(cfg.colour_clusters))]
 
 
-def _read_homography(path: Path) -> np.ndarray:
+def read_homography(path: Path) -> np.ndarray:
     try:
         matrix = np.loadtxt(path)
     except ValueError as exc:
@@ -66,7 +66,7 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
 
 def build_scene(scene_dir: Path, cfg: MapsConfig) -> tuple[np.ndarray, dict[str, Any], np.ndarray]:
     """(C, H, W) raster, its transform, and the warped RGB image (H, W, 3) for the check figure."""
-    world_to_pixel = _read_homography(scene_dir / "world_to_pixel.txt")
+    world_to_pixel = read_homography(scene_dir / "world_to_pixel.txt")
     image = _read_image(scene_dir / "reference.png", cv2.IMREAD_COLOR)
     h, w = image.shape[:2]
     corners = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], float) @ np.linalg.inv(world_to_pixel).T
