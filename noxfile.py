@@ -19,22 +19,19 @@ CONSTRAINTS = ("-c", "constraints.txt")
 
 @nox.session
 def main(session: nox.Session) -> None:
-    """The end-to-end job on the real data with the quick profile (minutes on a laptop CPU).
+    """The end-to-end job on the real data: `fftool reproduce pipelines/quick.toml --benchmarks zara1`.
 
-    Fetches the raw files if they are not beside the checkout, then: ingest, social forces, scene maps,
-    the goal U-Net for zara1 and its goal samples with the goal-FDE table.
+    Fetches the raw files if they are not beside the checkout, then runs the whole DAG (ingest, forces,
+    maps, goal U-Net and goal samples, the four CVAE variants, evaluation) and writes Tables II-IV.
     """
     session.install(*CONSTRAINTS, "-e", ".")
     raw = SHARED_RAW
     if not raw.is_dir():
         raw = Path("data/eth_ucy/raw")
         session.run("fftool", "fetch-data", "--dest", str(raw))
-    profile = ("-c", "pipelines/quick.toml", "--set", f"data.raw_dir={str(raw)!r}")
-    session.run("fftool", "ingest", *profile)
-    session.run("fftool", "forces", *profile)
-    session.run("fftool", "maps", *profile)
-    session.run("fftool", "train-goal", "--benchmark", "zara1", *profile)
-    session.run("fftool", "sample-goals", "--benchmarks", "zara1", *profile)
+    session.run(
+        "fftool", "reproduce", "pipelines/quick.toml", "--benchmarks", "zara1", "--set", f"data.raw_dir={str(raw)!r}"
+    )
 
 
 @nox.session
@@ -61,3 +58,4 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/bench_ingest.py", *session.posargs)
     session.run("python", "benchmarks/bench_forces.py", *session.posargs)
     session.run("python", "benchmarks/bench_cvae.py")
+    session.run("python", "benchmarks/bench_evaluate.py")

@@ -9,8 +9,8 @@ import fftool
 
 PACKAGE = Path(fftool.__file__).parent
 LEAVES = {"errors", "scenes", "hashing", "ui", "groups"}
-STAGE_MODULES = {"ingest", "windows", "forces", "maps", "goal", "goals"}
-ORCHESTRATION = {"pipeline", "cli", "__main__"}
+STAGE_MODULES = {"ingest", "windows", "forces", "maps", "goal", "goals", "cvae", "evaluate"}
+ORCHESTRATION = {"pipeline", "cli", "ablation", "__main__"}
 
 
 def _fftool_imports(module: str) -> set[str]:

@@ -6,10 +6,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from typer.testing import CliRunner
 
+from fftool.batches import load_agent_windows
 from fftool.cli import app
+from fftool.evaluate import rescore
+from fftool.store import ArtifactStore
 from tests.test_maps import make_scene
 
 TINY_PIPELINE = """
@@ -58,10 +62,10 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     for stem in ("table2_ade_fde", "table3_fde", "table4_collisions"):
         assert {p.suffix for p in report.glob(f"{stem}.*")} == {".md", ".csv", ".tex"}
 
-    manifests = {}
+    manifests, folders = {}, {}
     for folder in (root / "evaluate").iterdir():
         stats = json.loads((folder / "manifest.json").read_text())["stats"]
-        manifests[stats["variant"]] = stats
+        manifests[stats["variant"]], folders[stats["variant"]] = stats, folder.name
     assert set(manifests) == {"cv", "baseline", "dr"}
     assert manifests["dr"]["protocol"] == "paper" and manifests["baseline"]["protocol"] == "none"
     table3 = pd.read_csv(report / "table3_fde.csv").set_index("method")
@@ -69,8 +73,16 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert table3.loc["ForceFormer-Dr", "zara1 (paper)"] == 0.20
     table4 = pd.read_csv(report / "table4_collisions.csv").set_index("method")
     assert table4.loc["AgentFormer", "zara1"] == manifests["baseline"]["nc"]["best_ade"]["ordered"]
-    predictions = pd.read_parquet(next((root / "evaluate").iterdir()) / "predictions.parquet")
+    folder = next(f for f in (root / "evaluate").iterdir() if f.name.startswith(folders["dr"]))
+    predictions = pd.read_parquet(folder / "predictions.parquet")
     assert len(predictions) == manifests["dr"]["agent_windows"] and len(predictions["pred"].iloc[0]) == 20 * 12 * 2
+    windows = ArtifactStore(root).list("windows")[0]
+    data = load_agent_windows(windows, "zara1", "test")
+    same = rescore(predictions, data, 20, 0.1)  # metrics again from the saved predictions alone
+    np.testing.assert_allclose(same["min_ade"], predictions["min_ade"], rtol=1e-5)
+    np.testing.assert_array_equal(same["collisions"], predictions["collisions"])
+    wider = rescore(predictions, data, 20, 50.0)
+    assert wider["collisions"].sum() > same["collisions"].sum()
 
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0, again.output

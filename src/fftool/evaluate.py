@@ -20,11 +20,12 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
+import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.batches import SceneBatch, SceneSet, load_scene_set
+from fftool.batches import AgentWindows, SceneBatch, SceneSet, load_scene_set
 from fftool.config import EvaluateConfig, PipelineConfig
 from fftool.cvaenet import load_model, sample
 from fftool.errors import FftoolError
@@ -234,4 +235,31 @@ def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str,
             "joint": {pairs: collision_count(joint, pairs) for pairs in ("ordered", "unordered")},
         },
         "definitions": METRIC_DEFINITIONS,
+    }
+
+
+def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: float) -> dict[str, np.ndarray]:
+    """Per-agent metrics recomputed from saved predictions (e.g. at another γ) without sampling again.
+
+    predictions: an evaluation's predictions.parquet; data: the agent-windows of the same part (for
+    the ground truth). Returns the predictions file's metric columns, in its row order.
+    """
+    position = np.searchsorted(data.row, predictions["agent_row"].to_numpy())
+    pred = np.stack(predictions["pred"].to_numpy()).reshape(len(predictions), k, -1, 2)
+    truth = data.xy[position, -pred.shape[2] :]
+    windows = predictions["window_id"].to_numpy()
+    starts = np.r_[0, np.flatnonzero(np.diff(windows)) + 1, len(windows)]
+    slot = np.arange(len(windows)) - np.repeat(starts[:-1], np.diff(starts))
+    B, A = len(starts) - 1, int(np.diff(starts).max())
+    which = np.repeat(np.arange(B), np.diff(starts))
+    padded_pred = torch.zeros(B, A, k, pred.shape[2], 2)
+    padded_truth = torch.zeros(B, A, pred.shape[2], 2)
+    mask = torch.zeros(B, A, dtype=torch.bool)
+    padded_pred[which, slot] = torch.as_tensor(pred, dtype=torch.float32)
+    padded_truth[which, slot] = torch.as_tensor(truth, dtype=torch.float32)
+    mask[which, slot] = True
+    metrics = agent_metrics(padded_pred.transpose(1, 2), padded_truth, mask, threshold_m)
+    return {
+        name: getattr(metrics, name)[which, slot].numpy()
+        for name in ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions")
     }
