@@ -103,7 +103,7 @@ def qualitative(
                 ax.set_ylabel(f"window {window}")
     handles = [
         plt.Line2D([], [], color="black", lw=2, label="observed"),
-        plt.Line2D([], [], color="white", lw=2, ls="--", label="ground truth", path_effects=None),
+        plt.Line2D([], [], color="black", lw=1, ls="--", label="ground truth"),
         plt.Line2D([], [], color="C1", lw=1, label="best prediction" if best_only else "K predictions"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False)

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 
@@ -25,6 +26,13 @@ class Keys(NamedTuple):
 
     def extend(self, other: Keys) -> Keys:
         return Keys(*(torch.cat([a, b], 2) for a, b in zip(self, other)))
+
+
+class Queries(NamedTuple):
+    """Projected, pre-scaled queries: q and q_self, each (B, H, Lq, d_head)."""
+
+    q: Tensor
+    q_self: Tensor
 
 
 class KeyCache:
@@ -76,35 +84,56 @@ class AgentAwareAttention(nn.Module):
         B, L, D = x.shape
         return x.view(B, L, self.n_heads, self.d_head).transpose(1, 2)  # (B, H, L, dh)
 
+    def _project(self, x: Tensor, layers: tuple[nn.Linear, ...]) -> list[Tensor]:
+        """Several projections of x as one matrix product (much faster than one small product each)."""
+        weight = torch.cat([layer.weight for layer in layers])
+        bias = torch.cat([layer.bias for layer in layers])
+        return [self._heads(part) for part in F.linear(x, weight, bias).chunk(len(layers), -1)]
+
     def keys(self, key: Tensor) -> Keys:
         """Project key tokens (B, Lk, D) once; decoders cache these instead of re-projecting every step."""
-        return Keys(self._heads(self.k(key)), self._heads(self.k_self(key)), self._heads(self.v(key)))
+        return Keys(*self._project(key, (self.k, self.k_self, self.v)))
 
-    def attend(self, query: Tensor, keys: Keys, agents: int, allowed: Tensor) -> Tensor:
-        """query (B, Lq, D) and keys in time-major layouts of `agents` slots; allowed (B, Lq, Lk) bool.
+    def queries(self, query: Tensor) -> Queries:
+        """Project query tokens (B, Lq, D), pre-scaled by 1/sqrt(d_head) (cheaper than scaling scores)."""
+        q, q_self = self._project(query, (self.q, self.q_self))
+        scale = 1 / math.sqrt(self.d_head)
+        return Queries(q * scale, q_self * scale)
+
+    def project(self, x: Tensor) -> tuple[Queries, Keys]:
+        """Queries and keys of the same tokens (self-attention) in one product."""
+        q, q_self, k, k_self, v = self._project(x, (self.q, self.q_self, self.k, self.k_self, self.v))
+        scale = 1 / math.sqrt(self.d_head)
+        return Queries(q * scale, q_self * scale), Keys(k, k_self, v)
+
+    def attend(self, queries: Queries, keys: Keys, agents: int, allowed: Tensor | None) -> Tensor:
+        """Projected queries and keys in time-major layouts of `agents` slots; allowed (B, Lq, Lk) bool,
+        None when every pair is allowed (no padding in the batch: masking would change nothing).
 
         Same-agent scores are needed only where query and key belong to the same agent (1/A of the
         pairs), so they are computed on that diagonal alone and written over the shared scores.
         """
-        B, Lq, _ = query.shape
-        H, dh, Lk = self.n_heads, self.d_head, keys.k.shape[2]
-        scale = 1 / math.sqrt(dh)  # on the queries: cheaper than on the (Lq, Lk) scores
-        scores = self._heads(self.q(query) * scale) @ keys.k.transpose(-1, -2)  # (B, H, Lq, Lk)
+        B, H, Lq, dh = queries.q.shape
+        Lk = keys.k.shape[2]
+        scores = queries.q @ keys.k.transpose(-1, -2)  # (B, H, Lq, Lk)
         own = torch.einsum(
             "bhqad,bhkad->bhqka",
-            self._heads(self.q_self(query) * scale).reshape(B, H, Lq // agents, agents, dh),
+            queries.q_self.reshape(B, H, Lq // agents, agents, dh),
             keys.k_self.reshape(B, H, Lk // agents, agents, dh),
         )  # (B, H, Tq, Tk, A)
         grid = scores.view(B, H, Lq // agents, agents, Lk // agents, agents)
         torch.diagonal(grid, dim1=3, dim2=5).copy_(own)
-        scores = scores.masked_fill(~allowed[:, None], float("-inf"))
+        if allowed is not None:
+            scores = scores.masked_fill(~allowed[:, None], float("-inf"))
         weights = self.dropout(torch.softmax(scores, dim=-1))
         mixed = (weights @ keys.v).transpose(1, 2).flatten(2)  # (B, Lq, D)
         return self.out(mixed)
 
-    def forward(self, query: Tensor, key: Tensor, agents: int, allowed: Tensor) -> Tensor:
+    def forward(self, query: Tensor, key: Tensor, agents: int, allowed: Tensor | None) -> Tensor:
         """query (B, Lq, D), key (B, Lk, D), both time-major over `agents` slots; allowed (B, Lq, Lk)."""
-        return self.attend(query, self.keys(key), agents, allowed)
+        if query is key:
+            return self.attend(*self.project(query), agents, allowed)
+        return self.attend(self.queries(query), self.keys(key), agents, allowed)
 
 
 class _FeedForward(nn.Sequential):
@@ -122,7 +151,7 @@ class EncoderLayer(nn.Module):
         self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, agents: int, allowed: Tensor) -> Tensor:
+    def forward(self, x: Tensor, agents: int, allowed: Tensor | None) -> Tensor:
         x = self.norm1(x + self.drop(self.attn(x, x, agents, allowed)))
         return self.norm2(x + self.drop(self.ff(x)))
 
@@ -143,23 +172,24 @@ class DecoderLayer(nn.Module):
         x: Tensor,
         memory: Tensor | Keys,
         agents: int,
-        masks: tuple[Tensor, Tensor],
-        self_keys: Keys | None = None,
+        masks: tuple[Tensor | None, Tensor | None],
+        self_keys: tuple[Queries, Keys] | None = None,
         fold: int = 1,
     ) -> Tensor:
-        """memory: tokens or their projected keys; self_keys: cached projected keys (earlier steps + x);
-        masks: allowed pairs of the self- and the cross-attention.
+        """memory: tokens or their projected keys; self_keys: x's projected queries with the cached keys of
+        the earlier steps and x; masks: allowed pairs of the self- and the cross-attention.
 
         fold: x holds `fold` samples per memory window (repeat_interleave order); the cross-attention
         then reads them as one longer query of that window, so the memory is never copied per sample
         (allowed_cross is (B / fold, fold · Lq, Lk)).
         """
         allowed_self, allowed_cross = masks
-        self_keys = self.self_attn.keys(x) if self_keys is None else self_keys
+        queries, keys = self.self_attn.project(x) if self_keys is None else self_keys
         memory_keys = memory if isinstance(memory, Keys) else self.cross_attn.keys(memory)
-        x = self.norms[0](x + self.drop(self.self_attn.attend(x, self_keys, agents, allowed_self)))
+        x = self.norms[0](x + self.drop(self.self_attn.attend(queries, keys, agents, allowed_self)))
         B, L, D = x.shape
-        crossed = self.cross_attn.attend(x.reshape(B // fold, fold * L, D), memory_keys, agents, allowed_cross)
+        folded = self.cross_attn.queries(x.reshape(B // fold, fold * L, D))
+        crossed = self.cross_attn.attend(folded, memory_keys, agents, allowed_cross)
         x = self.norms[1](x + self.drop(crossed.reshape(B, L, D)))
         return self.norms[2](x + self.drop(self.ff(x)))
 
@@ -261,7 +291,7 @@ class ForceFormer(nn.Module):
         """past (B, A, Tp, F) -> context tokens (B, Tp·A, D) and per-agent context (B, A, D)."""
         B, A, Tp, _ = past.shape
         x = self.past_embed(past)
-        allowed = _token_masks(agent_mask, Tp, Tp, causal=False)
+        allowed = _token_masks(agent_mask, Tp, Tp, causal=False) if not agent_mask.all() else None
         for layer in self.encoder:
             x = layer(x, A, allowed)
         return x, x.view(B, Tp, A, -1).mean(1)
@@ -275,6 +305,7 @@ class ForceFormer(nn.Module):
         Tp = context.shape[1] // A
         x = self.future_embed(future)
         masks = (_token_masks(agent_mask, Tf, Tf, causal=False), _token_masks(agent_mask, Tf, Tp, causal=False))
+        masks = masks if not agent_mask.all() else (None, None)
         for layer in self.future_encoder:
             x = layer(x, context, A, masks)
         return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).chunk(2, -1))
@@ -311,6 +342,8 @@ class ForceFormer(nn.Module):
         memory = [layer.cross_attn.keys(context) for layer in self.decoder]  # once per rollout and window
         caches = [KeyCache(steps * A) for _ in self.decoder]
         # Step s may read every real agent's tokens of steps <= s; a padded query also sees itself.
+        padded = not bool(agent_mask.all())  # without padding no pair is masked: skip the masks
+        cross = cross if padded else None
         allowed_all = agent_mask.repeat(1, steps)[:, None, :].expand(B, A, steps * A).clone()
         own = torch.arange(A, device=agent_mask.device)
         for step in range(steps):
@@ -320,9 +353,10 @@ class ForceFormer(nn.Module):
         for step in range(steps):
             tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
             x = self.decoder_embed(tokens, first_step=step)  # (B, A, D)
-            allowed = allowed_all[:, :, : (step + 1) * A]
+            allowed = allowed_all[:, :, : (step + 1) * A] if padded else None
             for layer, cache, keys in zip(self.decoder, caches, memory):
-                self_keys = cache.append(layer.self_attn.keys(x))
+                queries, new_keys = layer.self_attn.project(x)
+                self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
             outputs.append(last_pos + self.out(x))  # (B, A, 2)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
