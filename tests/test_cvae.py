@@ -132,3 +132,16 @@ def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatc
     assert batched_loss == pytest.approx(np.mean([loss for loss, _ in singles]), rel=1e-5)
     for i, grad in enumerate(batched_grads):
         torch.testing.assert_close(grad, torch.stack([g[i] for _, g in singles]).mean(0), atol=1e-5, rtol=1e-4)
+
+
+def test_loss_decreases_and_a_seeded_run_repeats_exactly(inputs: dict, tmp_path: Path) -> None:
+    cfg = TINY.model_copy(update={"epochs": 4, "variant": "dr"})
+    first = _train(inputs, tmp_path, "first", cfg)
+    losses = [row["train_loss"] for row in first["log"]]
+    assert losses[-1] < 0.7 * losses[0], losses
+    (tmp_path / "scratch" / "last.pt").unlink()
+    second = _train(inputs, tmp_path, "second", cfg)
+    assert [row["train_loss"] for row in second["log"]] == losses  # same seed, same numbers on this machine
+    a = torch.load(tmp_path / "first" / "model.pt", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "second" / "model.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(a[key], b[key]) for key in a)

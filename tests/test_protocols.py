@@ -22,12 +22,12 @@ from fftool.training import save_checkpoint
 def test_paper_protocol_gives_every_sample_the_goal_closest_to_the_truth() -> None:
     sampled = torch.tensor([[[[5.0, 5.0], [1.0, 0.5], [0.0, 3.0]]]])  # (B=1, A=1, K=3, 2)
     truth_end = torch.tensor([[[1.0, 1.0]]])
-    goals = protocol_goals("paper", sampled, truth_end)
+    goals = protocol_goals("paper", sampled, truth_end, 3)
     assert goals.shape == (1, 3, 1, 2)
     assert goals[0, :, 0].tolist() == [[1.0, 0.5]] * 3
-    fair = protocol_goals("fair", sampled, truth_end)
+    fair = protocol_goals("fair", sampled, truth_end, 3)
     assert fair[0, :, 0].tolist() == sampled[0, 0].tolist()  # sample k uses goal k
-    assert protocol_goals("oracle", sampled, truth_end)[0, :, 0].tolist() == [[1.0, 1.0]] * 3
+    assert protocol_goals("oracle", sampled, truth_end, 3)[0, :, 0].tolist() == [[1.0, 1.0]] * 3
 
 
 @pytest.fixture

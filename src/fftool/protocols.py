@@ -26,20 +26,22 @@ from fftool.socialforce import desired_speed, finite_difference_velocity, social
 PROTOCOLS: Final = ("paper", "fair", "oracle")
 
 
-def protocol_goals(protocol: str, sampled: Tensor | None, truth_end: Tensor) -> Tensor:
-    """Goals (B, K, A, 2) for each sample: sampled (B, A, K, 2) world goals, truth_end (B, A, 2).
+def protocol_goals(protocol: str, sampled: Tensor | None, truth_end: Tensor, k: int) -> Tensor:
+    """Goals (B, k, A, 2) for each of k samples: sampled (B, A, G, 2) world goals, truth_end (B, A, 2).
 
-    paper and oracle give every sample the same goal; fair gives sample k goal k.
+    paper and oracle give every sample the same goal; fair gives sample i goal i (needs G = k).
     """
     if protocol == "oracle":
-        return truth_end[:, None].expand(-1, sampled.shape[2] if sampled is not None else 1, -1, -1)
+        return truth_end[:, None].expand(-1, k, -1, -1)
     if sampled is None:
         raise ValueError(f"protocol {protocol!r} needs sampled goals")
     if protocol == "paper":
         closest = torch.linalg.vector_norm(sampled - truth_end[:, :, None], dim=-1).argmin(-1)  # (B, A)
         chosen = sampled.gather(2, closest[..., None, None].expand(-1, -1, 1, 2))[:, :, 0]
-        return chosen[:, None].expand(-1, sampled.shape[2], -1, -1)
+        return chosen[:, None].expand(-1, k, -1, -1)
     if protocol == "fair":
+        if sampled.shape[2] != k:
+            raise ValueError(f"the fair protocol pairs goal i with sample i: {sampled.shape[2]} goals for {k} samples")
         return sampled.transpose(1, 2)
     raise ValueError(f"unknown goal protocol {protocol!r}; one of {', '.join(PROTOCOLS)}")
 

@@ -111,6 +111,7 @@ CVAE_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term, validati
 
 # --- evaluate artifact (one predictor scored on one benchmark part) ------------------------------------
 # predictions.parquet: one row per valid agent-window in agent_windows order: window_id, ped_id,
-# agent_row, n_agents, per-agent min_ade/min_fde/best_k/collisions/joint_collisions, goal (K·2) and
-# pred (K·T·2, sample-major) in world metres. The manifest holds the summary metrics and definitions.
+# agent_row, n_agents, per-agent min_ade/min_fde/best_k/collisions/joint_collisions, goal (K·2: each
+# sample's goal; the last observed position for predictors that read none) and pred (K·T·2,
+# sample-major) in world metres. The manifest holds the summary metrics and definitions.
 PREDICTIONS_FILE: Final = "predictions.parquet"
