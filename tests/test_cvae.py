@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -138,7 +139,7 @@ def test_loss_decreases_and_a_seeded_run_repeats_exactly(inputs: dict, tmp_path:
     cfg = TINY.model_copy(update={"epochs": 4, "variant": "dr"})
     first = _train(inputs, tmp_path, "first", cfg)
     losses = [row["train_loss"] for row in first["log"]]
-    assert losses[-1] < 0.7 * losses[0], losses
+    assert all(b < a for a, b in itertools.pairwise(losses)) and losses[-1] < 0.9 * losses[0], losses
     (tmp_path / "scratch" / "last.pt").unlink()
     second = _train(inputs, tmp_path, "second", cfg)
     assert [row["train_loss"] for row in second["log"]] == losses  # same seed, same numbers on this machine

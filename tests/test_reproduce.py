@@ -54,6 +54,10 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     profile = tmp_path / "tiny.toml"
     profile.write_text(TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes")))
     root = tmp_path / "artifacts"
+    common = ["-c", str(profile), "--root", str(root)]
+    early = CliRunner().invoke(app, ["evaluate", "--variant", "dr", *common])
+    assert early.exit_code == 1 and "fftool ingest" in early.output and not root.joinpath("evaluate").exists()
+    assert CliRunner().invoke(app, ["ablate", "--variants", "dr,teleport", *common]).exit_code == 2
     args = ["reproduce", str(profile), "--root", str(root), "--device", "cpu"]
     first = CliRunner().invoke(app, args)
     assert first.exit_code == 0, first.output
@@ -87,3 +91,14 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0, again.output
     assert "building" not in again.output and again.output.count("cached") >= 8
+
+    figures = tmp_path / "figures"
+    drawn = CliRunner().invoke(
+        app, ["plot", "--variants", "baseline,dr", "--count", "2", *common, "--out", str(figures)]
+    )
+    assert drawn.exit_code == 0, drawn.output
+    assert {p.name for p in figures.iterdir()} == {"qualitative_zara1.png", "density_zara1.png"}
+    missing = CliRunner().invoke(
+        app, ["plot", "--variants", "dr", "--windows", "99999", *common, "--out", str(figures)]
+    )
+    assert missing.exit_code == 1 and "99999" in missing.output

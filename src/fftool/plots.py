@@ -66,7 +66,8 @@ def pick_windows(evaluations: Sequence[Evaluation], count: int) -> list[int]:
         [e.frame.groupby("window_id")["min_ade"].mean().rename(e.predictor) for e in evaluations], axis=1
     ).dropna()
     busy = per[per.index.isin(evaluations[0].frame.query("n_agents >= 2")["window_id"])]
-    ranked = (busy if len(busy) >= count else per).pipe(lambda f: f.max(1) - f.min(1)).sort_values(ascending=False)
+    pool = busy if len(busy) >= count else per
+    ranked = (pool.max(axis=1) - pool.min(axis=1)).sort_values(ascending=False)
     return [int(w) for w in ranked.index[:count]]
 
 
