@@ -332,33 +332,35 @@ def _check_variants(value: str) -> str:
     return ",".join(name for name in names if name != "baseline")
 
 
+def _optional(flag: str, help_text: str, check: Callable[[str], str]) -> Any:
+    """An option whose absence means 'take it from the config'."""
+    return typer.Option(flag, help=help_text, callback=lambda v: v if v is None else check(v), show_default=False)
+
+
 ProtocolOption = Annotated[
     str | None,
-    typer.Option(
+    _optional(
         "--protocol",
-        help="Goal protocol of goal variants: paper (sampled goal closest to the truth), fair (sample k uses "
-        "goal k), oracle (true goal). Default: evaluate.protocol of the config (paper).",
-        callback=lambda v: v if v is None else _check_protocol(v),
-        show_default=False,
+        "Goal protocol of goal variants: paper (sampled goal closest to the truth), fair (sample k uses goal k), "
+        "oracle (true goal). Default: evaluate.protocol of the config (paper).",
+        _check_protocol,
     ),
 ]
 VariantsOption = Annotated[
     str | None,
-    typer.Option(
+    _optional(
         "--variants",
-        help="Comma-separated ForceFormer variants besides the baseline (always included): goal, dr, re. "
+        "Comma-separated ForceFormer variants besides the baseline (always included): goal, dr, re. "
         "Default: report.variants of the config (all three).",
-        callback=lambda v: v if v is None else _check_variants(v),
-        show_default=False,
+        _check_variants,
     ),
 ]
 OptionalBenchmarks = Annotated[
     str | None,
-    typer.Option(
+    _optional(
         "--benchmarks",
-        help="Comma-separated benchmarks, or all. Default: report.benchmarks of the config (all five).",
-        callback=lambda v: v if v is None else _check_benchmarks(v),
-        show_default=False,
+        "Comma-separated benchmarks, or all. Default: report.benchmarks of the config (all five).",
+        _check_benchmarks,
     ),
 ]
 

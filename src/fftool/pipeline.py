@@ -167,41 +167,29 @@ def _build_cvae(
     )
 
 
+def _with_bar(description: str, build: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
+    """Run a stage that reports (phase, done, total) with a live bar."""
+    with progress() as bar:
+        task = bar.add_task(description, total=None)
+        return build(*args, on_progress=_bar_callback(bar, task))
+
+
 def _build_goals(
     cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     assert benchmark is not None
-    with progress() as bar:
-        task = bar.add_task(f"sample goals ({benchmark})", total=None)
-        return goals.build(
-            cfg.goals,
-            benchmark,
-            inputs["goal"],
-            inputs["windows"],
-            inputs["maps"],
-            ctx.dir,
-            runtime.torch_device(),
-            on_progress=_bar_callback(bar, task),
-        )
+    device = runtime.torch_device()
+    args = (cfg.goals, benchmark, inputs["goal"], inputs["windows"], inputs["maps"], ctx.dir, device)
+    return _with_bar(f"sample goals ({benchmark})", goals.build, *args)
 
 
 def _build_evaluate(
     cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: BuildContext, runtime: Runtime, benchmark: str | None
 ) -> dict[str, Any]:
     assert benchmark is not None
-    with progress() as bar:
-        task = bar.add_task(f"evaluate ({benchmark})", total=None)
-        return evaluate.build(
-            cfg.evaluate,
-            benchmark,
-            inputs["windows"],
-            inputs["forces"],
-            inputs.get("cvae"),
-            inputs.get("goals"),
-            ctx.dir,
-            runtime.torch_device(),
-            on_progress=_bar_callback(bar, task),
-        )
+    upstream = (inputs["windows"], inputs["forces"], inputs.get("cvae"), inputs.get("goals"))
+    args = (cfg.evaluate, benchmark, *upstream, ctx.dir, runtime.torch_device())
+    return _with_bar(f"evaluate ({benchmark})", evaluate.build, *args)
 
 
 STAGES: dict[str, Stage] = {

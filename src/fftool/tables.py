@@ -8,7 +8,7 @@ sum; both are left empty unless all five scenes were evaluated, so a partial run
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,36 +82,41 @@ def table2(results: pd.DataFrame, caption: str) -> Table:
     return Table("table2_ade_fde", "Table II: minADE / minFDE (m)", pd.DataFrame(rows), caption)
 
 
-def table3(results: pd.DataFrame, caption: str) -> Table:
-    """minFDE per variant (the ablation), ours and the paper's."""
+def _scalar_table(
+    results: pd.DataFrame,
+    column: str,
+    total: tuple[str, Callable[[pd.Series], float]],
+    fmt: Callable[[float | None], str],
+    published: Mapping[str, Mapping[str, float]],
+) -> pd.DataFrame:
+    """One number per scene and a total over all five scenes, ours and the paper's side by side."""
     scenes = _scenes(results)
+    total_name, aggregate = total
     rows = []
     for predictor, group in results.groupby("predictor", sort=False):
-        by = group.set_index("benchmark")["min_fde"]
+        by = group.set_index("benchmark")[column]
         row = {"method": PAPER_NAMES[predictor]}
-        for scene in [*scenes, "average"]:
-            value = (by.mean() if _complete(scenes) else None) if scene == "average" else by[scene]
-            row[scene] = _fmt(value)
-            paper = TABLE3_FDE.get(predictor, {}).get(scene)
-            row[f"{scene} (paper)"] = _fmt(paper)
+        for scene in [*scenes, total_name]:
+            if scene == total_name:
+                row[scene] = fmt(aggregate(by) if _complete(scenes) else None)
+            else:
+                row[scene] = fmt(by[scene])
+            row[f"{scene} (paper)"] = fmt(published.get(predictor, {}).get(scene))
         rows.append(row)
-    return Table("table3_fde", "Table III: minFDE (m) per variant", pd.DataFrame(rows), caption)
+    return pd.DataFrame(rows)
+
+
+def table3(results: pd.DataFrame, caption: str) -> Table:
+    """minFDE per variant (the ablation), ours and the paper's."""
+    frame = _scalar_table(results, "min_fde", ("average", pd.Series.mean), _fmt, TABLE3_FDE)
+    return Table("table3_fde", "Table III: minFDE (m) per variant", frame, caption)
 
 
 def table4(results: pd.DataFrame, caption: str) -> Table:
     """Collision counts per variant and their sum, ours and the paper's."""
-    scenes = _scenes(results)
-    rows = []
-    for predictor, group in results.groupby("predictor", sort=False):
-        by = group.set_index("benchmark")["nc"]
-        row = {"method": PAPER_NAMES[predictor]}
-        for scene in [*scenes, "sum"]:
-            value = (int(by.sum()) if _complete(scenes) else None) if scene == "sum" else int(by[scene])
-            row[scene] = "" if value is None else str(value)
-            paper = TABLE4_COLLISIONS.get(predictor, {}).get(scene)
-            row[f"{scene} (paper)"] = "" if paper is None else str(paper)
-        rows.append(row)
-    return Table("table4_collisions", "Table IV: number of collisions", pd.DataFrame(rows), caption)
+    count = lambda value: "" if value is None else str(int(value))  # noqa: E731
+    frame = _scalar_table(results, "nc", ("sum", pd.Series.sum), count, TABLE4_COLLISIONS)
+    return Table("table4_collisions", "Table IV: number of collisions", frame, caption)
 
 
 def markdown(table: Table) -> str:
