@@ -91,6 +91,10 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0, again.output
     assert "building" not in again.output and again.output.count("cached") >= 8
+    fair = CliRunner().invoke(app, ["ablate", "--protocol", "fair", *common, "--out", str(tmp_path / "fair")])
+    assert fair.exit_code == 0, fair.output
+    assert fair.output.count("building") == 1  # only dr reads goals; baseline and cv are shared
+    assert "goal protocol 'fair'" in (tmp_path / "fair" / "report.md").read_text()
 
     figures = tmp_path / "figures"
     drawn = CliRunner().invoke(

@@ -58,6 +58,14 @@ def inputs(cfg: PipelineConfig) -> tuple[str, ...]:
     return ("windows", "forces", "cvae", "goals")
 
 
+def section(cfg: PipelineConfig) -> EvaluateConfig:
+    """The evaluate parameters that matter: the goal protocol only for predictors that read a goal, so the
+    baseline and cv evaluations are shared by every protocol (fingerprinted with the default)."""
+    if cfg.evaluate.predictor == "cv" or cfg.cvae.variant == "baseline":
+        return cfg.evaluate.model_copy(update={"protocol": EvaluateConfig().protocol})
+    return cfg.evaluate
+
+
 def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
     """(M, K, 2) sampled goals aligned with the scene set's agent-windows (checked key by key)."""
     index = pq.read_table(goals.file(GOALS_INDEX_FILE)).to_pandas()

@@ -247,7 +247,7 @@ STAGES: dict[str, Stage] = {
             evaluate.VERSION,
             ("windows", "forces", "cvae", "goals"),
             "fftool evaluate",
-            lambda cfg: cfg.evaluate,
+            evaluate.section,
             _build_evaluate,
             per_benchmark=True,
             needs=evaluate.inputs,
