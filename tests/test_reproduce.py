@@ -61,6 +61,7 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     args = ["reproduce", str(profile), "--root", str(root), "--device", "cpu"]
     first = CliRunner().invoke(app, args)
     assert first.exit_code == 0, first.output
+    assert "run summary" in first.output and "tracks, windows, forces" in first.output
     report = root / "reports" / "tiny"
     assert (report / "report.md").is_file() and "Table IV" in (report / "report.md").read_text()
     for stem in ("table2_ade_fde", "table3_fde", "table4_collisions"):
@@ -91,6 +92,7 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0, again.output
     assert "building" not in again.output and again.output.count("cached") >= 8
+    assert "run summary" in again.output and again.output.count("nothing (all reused)") == 3
     fair = CliRunner().invoke(app, ["ablate", "--protocol", "fair", *common, "--out", str(tmp_path / "fair")])
     assert fair.exit_code == 0, fair.output
     assert fair.output.count("building") == 1  # only dr reads goals; baseline and cv are shared

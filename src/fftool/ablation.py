@@ -58,9 +58,20 @@ def run(
             if on_cell:
                 on_cell(benchmark, predictor)
             cell = predictor_config(cfg, predictor)
+            missing = [r.stage.name for r in pipeline.resolve(cell, ["evaluate"], benchmark)
+                       if store.lookup(r.stage.name, r.fingerprint) is None]  # fmt: skip
+            started = time.perf_counter()
             built = pipeline.run(cell, store, ["evaluate"], runtime=runtime, benchmark=benchmark)
             artifact = built["evaluate"]
-            results.append(artifact.manifest.stats | {"artifact": artifact.id, "cvae": _id(built.get("cvae"))})
+            results.append(
+                artifact.manifest.stats
+                | {
+                    "artifact": artifact.id,
+                    "cvae": _id(built.get("cvae")),
+                    "built_now": missing,  # stages this run had to build for the cell
+                    "cell_seconds": time.perf_counter() - started,
+                }
+            )
     return results
 
 

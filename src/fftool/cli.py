@@ -419,7 +419,7 @@ def _ablation(
 
     from fftool import ablation, pipeline
     from fftool.config import load_config
-    from fftool.reports import report_tables
+    from fftool.reports import report_tables, run_summary
     from fftool.ui import log, out_console
 
     started = time.perf_counter()
@@ -442,7 +442,7 @@ def _ablation(
     out_dir = out or store.root / cfg.report.out_dir / profile  # an absolute out_dir replaces the root
     draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
     report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started, draw)
-    for table in report_tables(report.parent):
+    for table in [*report_tables(report.parent), run_summary(results)]:
         out_console.print(table)
     log(f"report: {report} ({(time.perf_counter() - started) / 60:.1f} min)")
 

@@ -217,3 +217,15 @@ def report_tables(report_dir: Path) -> list[Table]:
             table.add_row(*row)
         tables.append(table)
     return tables
+
+
+def run_summary(results: list[dict]) -> Table:
+    """What a reproduce/ablate run did per cell: which stages it built, which it found, how long it took."""
+    table = Table(title="run summary", title_justify="left", box=box.SIMPLE_HEAD, caption_justify="left")
+    for name in ("benchmark", "predictor", "protocol", "built now", "minutes", "evaluation"):
+        table.add_column(name, justify="right" if name == "minutes" else "left")
+    for r in results:
+        built = ", ".join(r["built_now"]) or "[dim]nothing (all reused)[/]"
+        minutes = f"{r['cell_seconds'] / 60:.1f}"
+        table.add_row(r["benchmark"], r["variant"], r["protocol"], built, minutes, r["artifact"])
+    return table
