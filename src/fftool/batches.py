@@ -1,4 +1,4 @@
-"""Artifact -> array loaders shared by the learning stages (goal, goals, and later cvae, evaluate).
+"""Artifact -> array loaders shared by the learning stages (goal, goals, cvae, evaluate) and the plots.
 
 Stages read each other's outputs only through these loaders and `schema.py`, never by import.
 """
