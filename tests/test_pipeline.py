@@ -72,3 +72,15 @@ def test_manifest_records_parameters_and_inputs(raw_tree: Path, store: ArtifactS
     assert tracks.stats["frame_stride"] == 10 and tracks.stats["dt_s"] == 0.4
     assert windows.inputs == {"tracks": tracks.fingerprint}
     assert windows.params == {"obs_len": 8, "pred_len": 12, "window_stride": 1}
+
+
+@pytest.mark.parametrize("profile", sorted(Path(__file__).resolve().parents[1].joinpath("pipelines").glob("*.toml")))
+def test_every_shipped_profile_loads_and_plans_the_whole_dag(profile: Path) -> None:
+    from fftool import ablation
+
+    cfg = load_config(profile)
+    for predictor in ablation.predictors(cfg, cfg.report.variants):
+        cell = ablation.predictor_config(cfg, predictor)
+        names = [item.stage.name for item in pipeline.resolve(cell, ["evaluate"], cfg.report.benchmarks[0])]
+        assert names[-1] == "evaluate" and names[0] == "tracks"
+        assert ("goals" in names) == (predictor in ("goal", "dr", "re"))
