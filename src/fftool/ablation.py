@@ -67,7 +67,8 @@ def run(
                 artifact.manifest.stats
                 | {
                     "artifact": artifact.id,
-                    "cvae": _id(built.get("cvae")),
+                    "predictions": str(artifact.file(PREDICTIONS_FILE)),
+                    "windows": built["windows"].id,
                     "built_now": missing,  # stages this run had to build for the cell
                     "cell_seconds": time.perf_counter() - started,
                 }
@@ -86,10 +87,12 @@ def figures(
 
     frames: dict[str, dict[str, pd.DataFrame]] = {}
     for r in results:
-        folder = store.resolve(r["artifact"])
-        frames.setdefault(r["benchmark"], {})[r["variant"]] = pd.read_parquet(folder.file(PREDICTIONS_FILE))
+        frames.setdefault(r["benchmark"], {})[r["variant"]] = pd.read_parquet(r["predictions"])
     written = [plots.density_curves(frames, out_dir / "density.png")]
-    windows = store.resolve(_windows_id(store, results))
+    windows_ids = {r["windows"] for r in results}
+    if len(windows_ids) != 1:
+        raise ValueError(f"the evaluations come from {len(windows_ids)} different windows artifacts")
+    windows = store.resolve(windows_ids.pop())
     obs_len = int(windows.manifest.stats["obs_len"])
     for benchmark, by_predictor in frames.items():
         k = next(r["k"] for r in results if r["benchmark"] == benchmark)
@@ -99,18 +102,6 @@ def figures(
         out = out_dir / f"qualitative_{benchmark}.png"
         written.append(plots.qualitative(evaluations, data, chosen, Path(cfg.data.scenes_dir), obs_len, False, out))
     return written
-
-
-def _windows_id(store: ArtifactStore, results: list[dict[str, Any]]) -> str:
-    """The windows artifact the evaluations were built from (one per report)."""
-    inputs = {store.resolve(r["artifact"]).manifest.inputs["windows"] for r in results}
-    if len(inputs) != 1:
-        raise ValueError(f"the evaluations come from {len(inputs)} different windows artifacts")
-    return f"windows/{inputs.pop()[:16]}"
-
-
-def _id(artifact: Any) -> str | None:
-    return None if artifact is None else artifact.id
 
 
 def caption(cfg: PipelineConfig, profile: str) -> str:

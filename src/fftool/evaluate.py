@@ -49,11 +49,16 @@ METRIC_DEFINITIONS: Final = {
 }
 
 
+def reads_goal(cfg: PipelineConfig) -> bool:
+    """Whether the evaluated predictor takes a goal (a goal, dr or re CVAE); cv and the baseline do not."""
+    return cfg.evaluate.predictor == "cvae" and cfg.cvae.variant != "baseline"
+
+
 def inputs(cfg: PipelineConfig) -> tuple[str, ...]:
     """Upstream stages of an evaluation: only what its predictor and protocol actually read."""
     if cfg.evaluate.predictor == "cv":
         return ("windows", "forces")
-    if cfg.cvae.variant == "baseline" or cfg.evaluate.protocol == "oracle":
+    if not reads_goal(cfg) or cfg.evaluate.protocol == "oracle":
         return ("windows", "forces", "cvae")
     return ("windows", "forces", "cvae", "goals")
 
@@ -61,9 +66,9 @@ def inputs(cfg: PipelineConfig) -> tuple[str, ...]:
 def section(cfg: PipelineConfig) -> EvaluateConfig:
     """The evaluate parameters that matter: the goal protocol only for predictors that read a goal, so the
     baseline and cv evaluations are shared by every protocol (fingerprinted with the default)."""
-    if cfg.evaluate.predictor == "cv" or cfg.cvae.variant == "baseline":
-        return cfg.evaluate.model_copy(update={"protocol": EvaluateConfig().protocol})
-    return cfg.evaluate
+    if reads_goal(cfg):
+        return cfg.evaluate
+    return cfg.evaluate.model_copy(update={"protocol": EvaluateConfig().protocol})
 
 
 def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
@@ -190,8 +195,8 @@ def build(
     with torch.no_grad():
         for done, members in enumerate(plan):
             batch = scenes.batch(members).to(device)
-            positions = np.searchsorted(scenes.data.row, batch.row.cpu().numpy())
-            positions = np.where(batch.row.cpu().numpy() >= 0, positions, -1)
+            rows = batch.row.cpu().numpy()
+            positions = np.where(rows >= 0, np.searchsorted(scenes.data.row, rows), -1)
             goals_k = predictor.goals(batch, positions)
             futures = predictor(batch, goals_k)
             metrics = agent_metrics(futures, batch.xy[:, :, obs_len:], batch.agent_mask, cfg.collision_threshold_m)
@@ -229,7 +234,7 @@ def build(
 
 def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str, variant: str, protocol: str) -> dict:
     """The manifest's metrics: means over agent-windows and every NC variant, with their definitions."""
-    collisions, joint = torch.as_tensor(columns["collisions"]), torch.as_tensor(columns["joint_collisions"])
+    collisions, joint = columns["collisions"], columns["joint_collisions"]
     return {
         "benchmark": benchmark,
         "part": cfg.part,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -65,8 +66,8 @@ def agent_metrics(pred: Tensor, truth: Tensor, agent_mask: Tensor, threshold_m: 
     )
 
 
-def collision_count(per_agent: Tensor, pairs: str = "ordered") -> int:
-    """NC from per-agent contact counts: the paper's ordered sum, or unordered (half of it)."""
+def collision_count(per_agent: Tensor | np.ndarray, pairs: str = "ordered") -> int:
+    """NC from per-agent contact counts (a tensor or an array): the paper's ordered sum, or unordered (half)."""
     total = int(per_agent.sum())
     if pairs == "ordered":
         return total

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import matplotlib
@@ -35,9 +36,14 @@ class Evaluation:
     k: int
     frame: pd.DataFrame  # predictions.parquet
 
+    @cached_property
+    def by_row(self) -> pd.DataFrame:
+        """The predictions indexed by agent_windows row (built once, read per drawn window)."""
+        return self.frame.set_index("agent_row")
+
     def futures(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), K, T, 2) predictions of the given agent_windows rows."""
-        chosen = self.frame.set_index("agent_row").loc[rows, "pred"]
+        chosen = self.by_row.loc[rows, "pred"]
         return np.stack([np.asarray(p, dtype=np.float32) for p in chosen]).reshape(len(rows), self.k, -1, 2)
 
 
@@ -93,7 +99,7 @@ def qualitative(
         for col, evaluation in enumerate(evaluations):
             ax = axes[row, col]
             futures = evaluation.futures(data.row[members])  # (A, K, T, 2)
-            best = evaluation.frame.set_index("agent_row").loc[data.row[members], "best_k"].to_numpy()
+            best = evaluation.by_row.loc[data.row[members], "best_k"].to_numpy()
             if best_only:
                 futures = futures[np.arange(len(members)), best][:, None]
             futures = scene.project(futures)

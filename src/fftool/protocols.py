@@ -21,7 +21,7 @@ from torch import Tensor
 
 from fftool.batches import SceneBatch
 from fftool.config import ForcesConfig
-from fftool.socialforce import desired_speed, finite_difference_velocity, social_forces
+from fftool.socialforce import desired_speed, finite_difference_velocity, group_pairs, social_forces
 
 PROTOCOLS: Final = ("paper", "fair", "oracle")
 
@@ -53,9 +53,7 @@ def with_past_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: f
     present = batch.agent_mask[:, :, None].expand(-1, -1, obs_len)
     velocity = finite_difference_velocity(past, present, dt_s, obs_len)
     speed0 = desired_speed(velocity, present, obs_len, cfg)
-    groups = (batch.group[:, :, None] == batch.group[:, None, :]) & (batch.group[:, :, None] >= 0)
-    groups &= ~torch.eye(groups.shape[-1], dtype=torch.bool, device=groups.device)
-    f_dr, f_re = social_forces(past, present, goal, velocity, speed0, groups, cfg)
+    f_dr, f_re = social_forces(past, present, goal, velocity, speed0, group_pairs(batch.group), cfg)
     future = torch.zeros_like(batch.f_dr[:, :, obs_len:])
     return SceneBatch(
         xy=batch.xy,

@@ -97,6 +97,15 @@ def same_group(labels: Tensor, min_steps: int) -> Tensor:
     return together.sum(dim=-1) > min_steps
 
 
+def group_pairs(ids: Tensor) -> Tensor:
+    """(..., N, N) bool from window-local group ids (..., N) (-1 alone): pairs that do not repel, self excluded.
+
+    The inverse of `group_ids`, for reading stored ids back.
+    """
+    pairs = (ids[..., :, None] == ids[..., None, :]) & (ids[..., :, None] >= 0)
+    return pairs & ~torch.eye(ids.shape[-1], dtype=torch.bool, device=ids.device)
+
+
 def group_ids(groups: Tensor) -> Tensor:
     """(..., N) long: the smallest agent index of each agent's group component, -1 when alone.
 

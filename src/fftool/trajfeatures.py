@@ -21,7 +21,7 @@ from torch import Tensor
 from fftool.batches import SceneBatch
 from fftool.config import ForcesConfig
 from fftool.models.forceformer import StepFeatures
-from fftool.socialforce import desired_direction, driving_force, social_forces
+from fftool.socialforce import desired_direction, driving_force, group_pairs, social_forces
 
 FEATURE_DIMS: Final = {"baseline": 4, "goal": 8, "dr": 6, "re": 10}
 DECODER_DIMS: Final = {"baseline": 2, "goal": 6, "dr": 4, "re": 8}
@@ -91,7 +91,6 @@ def prepare(
     forces = {"dr": _turn(batch.f_dr, R), "re": _turn(batch.f_re, R)}.get(variant)
     position, *extras = _step_features(variant, pos, goal_n, forces)
     features = torch.cat([position, velocity, *extras], -1) * mask[:, :, None, None]
-    groups = (batch.group[:, :, None] == batch.group[:, None, :]) & (batch.group[:, :, None] >= 0)
     return Prepared(
         past=features[:, :, :obs_len],
         future=features[:, :, obs_len:],
@@ -99,7 +98,7 @@ def prepare(
         future_pos=pos[:, :, obs_len:],
         goal=goal_n,
         speed0=batch.speed0,
-        groups=groups & ~torch.eye(groups.shape[-1], dtype=torch.bool, device=groups.device),
+        groups=group_pairs(batch.group),
         agent_mask=mask,
         origin=origin,
         rotation=R,

@@ -220,12 +220,14 @@ class TimeEmbedding(nn.Module):
         return h.transpose(1, 2).reshape(B, T * A, -1)
 
 
-def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> Tensor:
-    """Allowed query-key pairs (B, Lq, Lk) for time-major token layouts.
+def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> Tensor | None:
+    """Allowed query-key pairs (B, Lq, Lk) for time-major token layouts; None when every pair is allowed.
 
     Keys of padded agents are never allowed; every query may see itself, so no softmax row is empty
     (padded queries see only themselves). With `causal`, a token at step s sees steps <= s of everyone.
     """
+    if not causal and bool(agent_mask.all()):
+        return None  # no padding: masking would change nothing
     B, A = agent_mask.shape
     allowed = agent_mask.repeat(1, t_key)[:, None, :].expand(B, t_query * A, t_key * A)
     if causal:
@@ -291,7 +293,7 @@ class ForceFormer(nn.Module):
         """past (B, A, Tp, F) -> context tokens (B, Tp·A, D) and per-agent context (B, A, D)."""
         B, A, Tp, _ = past.shape
         x = self.past_embed(past)
-        allowed = _token_masks(agent_mask, Tp, Tp, causal=False) if not agent_mask.all() else None
+        allowed = _token_masks(agent_mask, Tp, Tp, causal=False)
         for layer in self.encoder:
             x = layer(x, A, allowed)
         return x, x.view(B, Tp, A, -1).mean(1)
@@ -305,7 +307,6 @@ class ForceFormer(nn.Module):
         Tp = context.shape[1] // A
         x = self.future_embed(future)
         masks = (_token_masks(agent_mask, Tf, Tf, causal=False), _token_masks(agent_mask, Tf, Tp, causal=False))
-        masks = masks if not agent_mask.all() else (None, None)
         for layer in self.future_encoder:
             x = layer(x, context, A, masks)
         return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).chunk(2, -1))
@@ -337,17 +338,13 @@ class ForceFormer(nn.Module):
         """
         B, A, _ = last_pos.shape
         Tp = context.shape[1] // A
-        windows_mask = agent_mask[::repeat]  # (B / repeat, A)
-        cross = windows_mask.repeat(1, Tp)[:, None, :].expand(B // repeat, repeat * A, Tp * A)
+        cross = _token_masks(agent_mask[::repeat], repeat, Tp, causal=False)  # (B / repeat, repeat · A, Tp · A)
         memory = [layer.cross_attn.keys(context) for layer in self.decoder]  # once per rollout and window
         caches = [KeyCache(steps * A) for _ in self.decoder]
         # Step s may read every real agent's tokens of steps <= s; a padded query also sees itself.
-        padded = not bool(agent_mask.all())  # without padding no pair is masked: skip the masks
-        cross = cross if padded else None
+        padded = cross is not None  # without padding no pair is masked: skip the masks
         allowed_all = agent_mask.repeat(1, steps)[:, None, :].expand(B, A, steps * A).clone()
-        own = torch.arange(A, device=agent_mask.device)
-        for step in range(steps):
-            allowed_all[:, own, step * A + own] = True
+        allowed_all.view(B, A, steps, A).diagonal(dim1=1, dim2=3).fill_(True)  # own tokens, every step
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
         outputs = []
         for step in range(steps):
