@@ -70,6 +70,27 @@ def test_agent_aware_attention_matches_the_two_matrix_definition(t_query: int, t
     torch.testing.assert_close(attn(query, key, 3, allowed), _reference_attention(attn, query, key, 3, allowed))
 
 
+@pytest.mark.parametrize(("t_query", "t_key", "causal"), [(3, 3, False), (2, 5, False), (4, 4, True)])
+def test_agent_aware_attention_gradients_match_the_definition(t_query: int, t_key: int, causal: bool) -> None:
+    """Gradients through the diagonal-only same-agent scores and in-place masking equal the plain definition."""
+    torch.manual_seed(0)
+    attn = AgentAwareAttention(16, 2, 0.0).double()
+    agent_mask = torch.tensor([[True, True, True], [True, False, True]])
+    query, key = torch.randn(2, t_query * 3, 16, dtype=torch.double), torch.randn(2, t_key * 3, 16, dtype=torch.double)
+    allowed = _token_masks(agent_mask, t_query, t_key, causal)
+    if t_query != t_key:
+        allowed = allowed | torch.eye(t_query * 3, t_key * 3, dtype=torch.bool)
+    upstream = torch.randn(2, t_query * 3, 16, dtype=torch.double)
+    grads = []
+    for forward in (attn, lambda *a: _reference_attention(attn, *a)):
+        attn.zero_grad()
+        q, k = query.clone().requires_grad_(), key.clone().requires_grad_()
+        (forward(q, k, 3, allowed) * upstream).sum().backward()
+        grads.append([q.grad, k.grad] + [param.grad.clone() for param in attn.parameters()])
+    for ours, reference in zip(*grads):
+        torch.testing.assert_close(ours, reference)
+
+
 def test_agent_aware_attention_separates_self_from_others() -> None:
     torch.manual_seed(0)
     attn = AgentAwareAttention(16, 2, 0.0).eval()
