@@ -7,6 +7,7 @@ import torch
 
 from fftool.models.forceformer import (
     AgentAwareAttention,
+    Dropout,
     ForceFormer,
     Gaussian,
     _token_masks,
@@ -89,6 +90,21 @@ def test_agent_aware_attention_gradients_match_the_definition(t_query: int, t_ke
         grads.append([q.grad, k.grad] + [param.grad.clone() for param in attn.parameters()])
     for ours, reference in zip(*grads):
         torch.testing.assert_close(ours, reference)
+
+
+def test_cpu_dropout_drops_p_keeps_the_mean_and_repeats_with_the_seed() -> None:
+    dropout = Dropout(0.1).train()
+    x = torch.ones(400_000, requires_grad=True)
+    torch.manual_seed(3)
+    y = dropout(x)
+    assert abs(float((y == 0).float().mean()) - 0.1) < 0.003
+    assert abs(float(y.detach().mean()) - 1) < 0.005  # kept values scaled by 1 / (1 - p)
+    y.sum().backward()
+    torch.testing.assert_close(x.grad, y.detach())  # the gradient is the same mask
+    torch.manual_seed(3)
+    assert torch.equal(dropout(x), y)
+    assert not torch.equal(dropout(x), y)  # the next draw differs
+    assert dropout.eval()(x) is x
 
 
 def test_agent_aware_attention_separates_self_from_others() -> None:
