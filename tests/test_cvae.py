@@ -146,3 +146,34 @@ def test_loss_decreases_and_a_seeded_run_repeats_exactly(inputs: dict, tmp_path:
     a = torch.load(tmp_path / "first" / "model.pt", weights_only=True)["state_dict"]
     b = torch.load(tmp_path / "second" / "model.pt", weights_only=True)["state_dict"]
     assert all(torch.equal(a[key], b[key]) for key in a)
+
+
+def test_bf16_precision_runs_products_in_bfloat16_and_keeps_losses_float32(inputs: dict, tmp_path: Path) -> None:
+    scenes = load_scene_set(inputs["windows"], inputs["forces"], "zara1", "train")
+    prepared = prepare(scenes.batch(np.arange(4)), "re", 8)
+    losses = {}
+    for precision in ("fp32", "bf16"):
+        cfg = TINY.model_copy(update={"variant": "re", "precision": precision})
+        torch.manual_seed(0)
+        model = cvaenet.build_model(cfg)
+        seen: set[torch.dtype] = set()
+        model.decoder[0].ff[0].register_forward_hook(lambda module, args, out, seen=seen: seen.add(out.dtype))
+        parts = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator().manual_seed(0))
+        parts.total.backward()
+        assert seen == {torch.bfloat16 if precision == "bf16" else torch.float32}
+        assert all(part.dtype == torch.float32 and torch.isfinite(part) for part in parts)
+        assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+        losses[precision] = parts.total.item()
+    assert losses["bf16"] == pytest.approx(losses["fp32"], rel=0.05)  # the same model, coarser products
+
+
+def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
+    cfg = TINY.model_copy(update={"compile": True})
+    torch.manual_seed(0)
+    compiled = cvaenet.build_model(cfg).eval()
+    torch.manual_seed(0)
+    plain = cvaenet.build_model(cfg.model_copy(update={"compile": False})).eval()
+    assert compiled.state_dict().keys() == plain.state_dict().keys()  # checkpoints load either way
+    past, mask = torch.randn(3, 4, 8, FEATURE_DIMS["baseline"]), torch.tensor([[1, 1, 1, 0]] * 3, dtype=torch.bool)
+    with torch.no_grad():
+        torch.testing.assert_close(compiled.encode_past(past, mask)[0], plain.encode_past(past, mask)[0])

@@ -170,6 +170,10 @@ class CVAEConfig(_Section):
     max_train_windows: int = Field(0, ge=0)  # per epoch, 0 = all
     rotate: bool = True  # random scene rotation in training (AgentFormer's rand_rot_scene)
     val_max_windows: int = Field(200, ge=0)  # validation windows per epoch (0 = all)
+    # Speed options (docs/cvae.md): bf16 runs matrix products under torch.autocast (meant for CUDA;
+    # CPUs without bf16 units get slower); compile wraps the transformer layers in torch.compile.
+    precision: Literal["fp32", "bf16"] = "fp32"
+    compile: bool = False
     seed: int = 0
 
 

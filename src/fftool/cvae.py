@@ -22,7 +22,7 @@ import torch
 
 from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
-from fftool.cvaenet import build_model, sample
+from fftool.cvaenet import autocast, build_model, sample
 from fftool.models.forceformer import ForceFormer, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
@@ -38,19 +38,20 @@ def training_loss(
     model: ForceFormer, prepared: Prepared, cfg: CVAEConfig, forces_cfg: ForcesConfig, dt_s: float, gen: torch.Generator
 ):
     """AgentFormer's loss parts for one batch (posterior reconstruction, KL, best-of-train_k)."""
-    tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
-    q = model.posterior(prepared.future, tokens, prepared.agent_mask)
-    p = model.prior(agent_context)
-    Tf = prepared.future_pos.shape[2]
-    recon = model.decode(
-        q.sample(gen),
-        prepared.past_pos[:, :, -1],
-        tokens,
-        prepared.agent_mask,
-        Tf,
-        decoder_features(cfg.variant, prepared, forces_cfg, dt_s),
-    )
-    samples = sample(model, prepared, cfg, forces_cfg, dt_s, cfg.train_k, gen, (tokens, agent_context))
+    with autocast(cfg, prepared.past.device):
+        tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
+        q = model.posterior(prepared.future, tokens, prepared.agent_mask)
+        p = model.prior(agent_context)
+        Tf = prepared.future_pos.shape[2]
+        recon = model.decode(
+            q.sample(gen),
+            prepared.past_pos[:, :, -1],
+            tokens,
+            prepared.agent_mask,
+            Tf,
+            decoder_features(cfg.variant, prepared, forces_cfg, dt_s),
+        )
+        samples = sample(model, prepared, cfg, forces_cfg, dt_s, cfg.train_k, gen, (tokens, agent_context))
     return cvae_loss(recon, prepared.future_pos, q, p, samples, prepared.agent_mask, cfg.kl_min)
 
 

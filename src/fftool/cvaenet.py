@@ -17,7 +17,7 @@ from fftool.trajfeatures import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_fe
 
 
 def build_model(cfg: CVAEConfig) -> ForceFormer:
-    return ForceFormer(
+    model = ForceFormer(
         input_dim=FEATURE_DIMS[cfg.variant],
         decoder_dim=DECODER_DIMS[cfg.variant],
         d_model=cfg.d_model,
@@ -27,6 +27,15 @@ def build_model(cfg: CVAEConfig) -> ForceFormer:
         n_layers=cfg.n_layers,
         z_dim=cfg.z_dim,
     )
+    if cfg.compile:  # in place: parameter names (and saved checkpoints) stay the same
+        for layer in (*model.encoder, *model.future_encoder, *model.decoder):
+            layer.compile(dynamic=True)
+    return model
+
+
+def autocast(cfg: CVAEConfig, device: torch.device) -> torch.autocast:
+    """bfloat16 matrix products when the config asks for it; losses and latent Gaussians stay float32."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.precision == "bf16")
 
 
 def sample(
@@ -41,12 +50,14 @@ def sample(
 ) -> torch.Tensor:
     """K futures per agent from the prior: (B, K, A, Tf, 2) in the normalised frame."""
     B, A, Tf, _ = prepared.future_pos.shape
-    tokens, agent_context = context or model.encode_past(prepared.past, prepared.agent_mask)
-    prior = model.prior(agent_context)
-    rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
-    z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_)
-    features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
-    out = model.decode(z, rep(prepared.past_pos[:, :, -1]), tokens, rep(prepared.agent_mask), Tf, features, repeat=k)
+    with autocast(cfg, prepared.past.device):
+        tokens, agent_context = context or model.encode_past(prepared.past, prepared.agent_mask)
+        prior = model.prior(agent_context)
+        rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
+        z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_)
+        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
+        last = rep(prepared.past_pos[:, :, -1])
+        out = model.decode(z, last, tokens, rep(prepared.agent_mask), Tf, features, repeat=k)
     return out.view(B, k, A, Tf, 2)
 
 

@@ -319,7 +319,7 @@ class ForceFormer(nn.Module):
         return x, x.view(B, Tp, A, -1).mean(1)
 
     def prior(self, agent_context: Tensor) -> Gaussian:
-        return Gaussian(*self.p_head(agent_context).chunk(2, -1))
+        return Gaussian(*self.p_head(agent_context).float().chunk(2, -1))  # float32 under autocast too
 
     def posterior(self, future: Tensor, context: Tensor, agent_mask: Tensor) -> Gaussian:
         """future (B, A, Tf, F) with the context -> q(z | X, Y)."""
@@ -329,7 +329,7 @@ class ForceFormer(nn.Module):
         masks = (_token_masks(agent_mask, Tf, Tf, causal=False), _token_masks(agent_mask, Tf, Tp, causal=False))
         for layer in self.future_encoder:
             x = layer(x, context, A, masks)
-        return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).chunk(2, -1))
+        return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).float().chunk(2, -1))
 
     # --- decode -----------------------------------------------------------------------------------
 
@@ -375,7 +375,7 @@ class ForceFormer(nn.Module):
                 queries, new_keys = layer.self_attn.project(x)
                 self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
-            outputs.append(last_pos + self.out(x))  # (B, A, 2)
+            outputs.append(last_pos + self.out(x).float())  # (B, A, 2)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
 
