@@ -1,6 +1,7 @@
 """Benchmark: CVAE training throughput, batched windows vs one window per step, same process and model.
 
-Run: `python3 -m nox -s bench` (or `python benchmarks/bench_cvae.py [--seconds 90] [--variant baseline]`).
+Run: `python3 -m nox -s bench` (or `python benchmarks/bench_cvae.py [--seconds 90] [--variant baseline]
+[--precision bf16] [--compile]`).
 Both modes train the same d_model 256 model (AgentFormer's size, K = 20 best-of-K samples) on the same
 random zara1 training windows for a fixed time budget and report valid agent-windows per second. The
 official implementation's figure on this machine is 2.61 agent-windows/s (research/agentformer.md §10.1).
@@ -47,6 +48,9 @@ def main() -> None:
     parser.add_argument("--raw", type=Path, default=DEFAULT_RAW)
     parser.add_argument("--seconds", type=float, default=90.0)
     parser.add_argument("--variant", default="baseline")
+    parser.add_argument("--precision", choices=("fp32", "bf16"), default="fp32")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the layers (compile time counts)")
+    parser.add_argument("--profile", type=int, default=0, metavar="N", help="only profile the first N batched steps")
     args = parser.parse_args()
 
     from rich.console import Console
@@ -65,15 +69,23 @@ def main() -> None:
         )
         scenes = load_scene_set(built["windows"], built["forces"], "zara1", "train")
     err_console.quiet = False
-    cfg = CVAEConfig(variant=args.variant)
+    cfg = CVAEConfig(variant=args.variant, precision=args.precision, compile=args.compile)
     rng = np.random.default_rng(0)
     order = rng.permutation(scenes.windows)
     batched_plan = scenes.plan(order, cfg.batch_windows, cfg.max_agent_pairs, rng)
+    if args.profile:
+        from torch.profiler import profile
+
+        with profile() as prof:
+            _throughput(scenes, cfg, batched_plan[: args.profile], float("inf"))
+        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=15))
+        return
     single_plan = [np.array([w]) for w in np.concatenate(batched_plan)]  # the same windows, in the same order
     batched, n_batched = _throughput(scenes, cfg, batched_plan, args.seconds)
     single, n_single = _throughput(scenes, cfg, single_plan, args.seconds)
 
-    table = Table(title=f"CVAE training throughput, {args.variant}, d_model 256, K = 20, zara1 train, this CPU")
+    options = f"{args.precision}{', compiled' if args.compile else ''}"
+    table = Table(title=f"CVAE training throughput, {args.variant}, {options}, d_model 256, K = 20, zara1 train")
     for column in ("mode", "agent-windows / s", "agent-windows done", "× official"):
         table.add_column(column, justify="right" if column != "mode" else "left")
     table.add_row(
