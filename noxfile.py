@@ -57,5 +57,5 @@ def bench(session: nox.Session) -> None:
     session.install(*CONSTRAINTS, "-e", ".")
     session.run("python", "benchmarks/bench_ingest.py", *session.posargs)
     session.run("python", "benchmarks/bench_forces.py", *session.posargs)
-    session.run("python", "benchmarks/bench_cvae.py")
+    session.run("python", "benchmarks/bench_cvae.py", "--by-agents", "20")
     session.run("python", "benchmarks/bench_evaluate.py")

@@ -1,7 +1,7 @@
 """Benchmark: CVAE training throughput, batched windows vs one window per step, same process and model.
 
 Run: `python3 -m nox -s bench` (or `python benchmarks/bench_cvae.py [--seconds 90] [--variant baseline]
-[--precision bf16] [--compile]`).
+[--precision bf16] [--compile] [--by-agents 20] [--profile 6]`).
 Both modes train the same d_model 256 model (AgentFormer's size, K = 20 best-of-K samples) on the same
 random zara1 training windows for a fixed time budget and report valid agent-windows per second. The
 official implementation's figure on this machine is 2.61 agent-windows/s (research/agentformer.md §10.1).
@@ -19,6 +19,8 @@ import torch
 
 DEFAULT_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_ucy" / "raw"
 OFFICIAL_AGENT_WINDOWS_PER_S = 2.61
+# The official code's seconds per training step by agent count, zara1 config (research/agentformer.md §10.2).
+OFFICIAL_STEP_S = {1: 0.32, 2: 0.44, 4: 0.97, 8: 1.34, 16: 3.53, 32: 14.9}
 
 
 def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
@@ -43,6 +45,19 @@ def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
     return agents / (time.perf_counter() - start), agents
 
 
+def _by_agents(scenes, cfg, seconds: float):
+    """(agents, batched, one window per step) throughput on windows with exactly that many agents."""
+    counts = scenes.agents()
+    for agents in OFFICIAL_STEP_S:
+        windows = np.flatnonzero(counts == agents)[:96]
+        if len(windows) == 0:
+            continue
+        plan = scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0))
+        batched = _throughput(scenes, cfg, plan, seconds)[0]
+        single = _throughput(scenes, cfg, [np.array([w]) for w in windows], seconds)[0]
+        yield agents, batched, single
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--raw", type=Path, default=DEFAULT_RAW)
@@ -51,6 +66,7 @@ def main() -> None:
     parser.add_argument("--precision", choices=("fp32", "bf16"), default="fp32")
     parser.add_argument("--compile", action="store_true", help="torch.compile the layers (compile time counts)")
     parser.add_argument("--profile", type=int, default=0, metavar="N", help="only profile the first N batched steps")
+    parser.add_argument("--by-agents", type=float, default=0, metavar="S", help="also S seconds per agent count")
     args = parser.parse_args()
 
     from rich.console import Console
@@ -98,6 +114,15 @@ def main() -> None:
     table.add_row("official AgentFormer (research/agentformer.md)", f"{OFFICIAL_AGENT_WINDOWS_PER_S:.2f}", "", "1.0")
     table.caption = f"batched / one-window ratio: {batched / single:.1f}×; each mode ran about {args.seconds:.0f} s"
     Console().print(table)
+    if args.by_agents:
+        table = Table(title="by agents per window (windows with exactly that many agents)")
+        for column in ("agents", "batched aw/s", "one window aw/s", "official aw/s (§10.2)", "batched × official"):
+            table.add_column(column, justify="right")
+        for agents, batched, single in _by_agents(scenes, cfg, args.by_agents):
+            official = agents / OFFICIAL_STEP_S[agents]
+            ratio = batched / official
+            table.add_row(str(agents), f"{batched:.1f}", f"{single:.1f}", f"{official:.2f}", f"{ratio:.1f}")
+        Console().print(table)
 
 
 if __name__ == "__main__":
