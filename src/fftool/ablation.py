@@ -19,10 +19,9 @@ import torch
 
 from fftool import pipeline, tables
 from fftool.config import PipelineConfig
+from fftool.published import PREDICTORS
 from fftool.schema import PREDICTIONS_FILE
 from fftool.store import ArtifactStore
-
-PREDICTORS = ("cv", "baseline", "goal", "dr", "re")
 
 
 def predictor_config(cfg: PipelineConfig, predictor: str) -> PipelineConfig:

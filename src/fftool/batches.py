@@ -6,7 +6,8 @@ Stages read each other's outputs only through these loaders and `schema.py`, nev
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, fields
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -126,8 +127,12 @@ class SceneBatch:
     group: torch.Tensor
     row: torch.Tensor
 
+    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> SceneBatch:
+        """The batch with fn applied to every field."""
+        return SceneBatch(*(fn(getattr(self, f.name)) for f in fields(self)))
+
     def to(self, device: torch.device) -> SceneBatch:
-        return SceneBatch(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+        return self.map(lambda t: t.to(device))
 
 
 @dataclass(frozen=True)

@@ -313,14 +313,18 @@ def train_cvae(
 
 
 def _check_predictor(value: str) -> str:
-    if value not in ("cv", "baseline", "goal", "dr", "re"):
-        raise typer.BadParameter(f"{value!r} is not one of cv, baseline, goal, dr, re")
+    from fftool.published import PREDICTORS
+
+    if value not in PREDICTORS:
+        raise typer.BadParameter(f"{value!r} is not one of {', '.join(PREDICTORS)}")
     return value
 
 
 def _check_protocol(value: str) -> str:
-    if value not in ("paper", "fair", "oracle"):
-        raise typer.BadParameter(f"{value!r} is not one of paper, fair, oracle")
+    from fftool.protocols import PROTOCOLS
+
+    if value not in PROTOCOLS:
+        raise typer.BadParameter(f"{value!r} is not one of {', '.join(PROTOCOLS)}")
     return value
 
 

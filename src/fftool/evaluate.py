@@ -121,11 +121,6 @@ class Predictor:
         if self.sampled_goals is not None:
             safe = np.where(positions >= 0, positions, 0)
             sampled = torch.as_tensor(self.sampled_goals[safe], dtype=torch.float32, device=self.device)
-        if self.protocol == "fair" and sampled is not None and sampled.shape[2] != k:
-            raise FftoolError(
-                f"the fair protocol pairs goal k with sample k: the goals artifact holds {sampled.shape[2]} goals "
-                f"per agent-window, evaluate.k is {k}; set goals.k = evaluate.k"
-            )
         return protocol_goals(self.protocol, sampled, batch.xy[:, :, -1], k)
 
     def __call__(self, batch: SceneBatch, goals: torch.Tensor) -> torch.Tensor:

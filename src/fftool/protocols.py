@@ -14,6 +14,7 @@ ground-truth goal leaks through them.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Final
 
 import torch
@@ -21,6 +22,7 @@ from torch import Tensor
 
 from fftool.batches import SceneBatch
 from fftool.config import ForcesConfig
+from fftool.errors import FftoolError
 from fftool.socialforce import desired_speed, finite_difference_velocity, group_pairs, social_forces
 
 PROTOCOLS: Final = ("paper", "fair", "oracle")
@@ -41,7 +43,10 @@ def protocol_goals(protocol: str, sampled: Tensor | None, truth_end: Tensor, k: 
         return chosen[:, None].expand(-1, k, -1, -1)
     if protocol == "fair":
         if sampled.shape[2] != k:
-            raise ValueError(f"the fair protocol pairs goal i with sample i: {sampled.shape[2]} goals for {k} samples")
+            raise FftoolError(
+                f"the fair protocol pairs goal k with sample k: the goals artifact holds {sampled.shape[2]} goals "
+                f"per agent-window, evaluate.k is {k}; set goals.k = evaluate.k"
+            )
         return sampled.transpose(1, 2)
     raise ValueError(f"unknown goal protocol {protocol!r}; one of {', '.join(PROTOCOLS)}")
 
@@ -55,20 +60,12 @@ def with_past_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: f
     speed0 = desired_speed(velocity, present, obs_len, cfg)
     f_dr, f_re = social_forces(past, present, goal, velocity, speed0, group_pairs(batch.group), cfg)
     future = torch.zeros_like(batch.f_dr[:, :, obs_len:])
-    return SceneBatch(
-        xy=batch.xy,
-        agent_mask=batch.agent_mask,
-        f_dr=torch.cat([f_dr, future], 2),
-        f_re=torch.cat([f_re, future], 2),
-        speed0=batch.speed0,
-        group=batch.group,
-        row=batch.row,
-    )
+    return replace(batch, f_dr=torch.cat([f_dr, future], 2), f_re=torch.cat([f_re, future], 2))
 
 
 def repeat_windows(batch: SceneBatch, k: int) -> SceneBatch:
     """Each window k times in a row (repeat_interleave order), e.g. one copy per goal of the fair protocol."""
-    return SceneBatch(*(getattr(batch, f).repeat_interleave(k, 0) for f in batch.__dataclass_fields__))
+    return batch.map(lambda t: t.repeat_interleave(k, 0))
 
 
 def constant_velocity(

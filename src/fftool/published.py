@@ -15,6 +15,7 @@ PAPER_NAMES: Final = {
     "dr": "ForceFormer-Dr",
     "re": "ForceFormer-Re",
 }
+PREDICTORS: Final = tuple(PAPER_NAMES)  # fftool's predictor names, in the row order of every table
 
 # Table II: minADE_20 / minFDE_20 (m).
 TABLE2_ADE_FDE: Final[dict[str, dict[str, tuple[float, float]]]] = {

@@ -15,10 +15,8 @@ from typing import Any
 
 import pandas as pd
 
-from fftool.published import PAPER_NAMES, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
+from fftool.published import PAPER_NAMES, PREDICTORS, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
 from fftool.scenes import BENCHMARKS
-
-PREDICTOR_ORDER = ("cv", "baseline", "goal", "dr", "re")
 
 
 @dataclass(frozen=True)
@@ -46,7 +44,7 @@ def results_frame(results: Iterable[Mapping[str, Any]], pairs: str, sample: str)
         for r in results
     ]
     frame = pd.DataFrame(rows)
-    order = {name: i for i, name in enumerate(PREDICTOR_ORDER)}
+    order = {name: i for i, name in enumerate(PREDICTORS)}
     return frame.sort_values(["predictor", "benchmark"], key=lambda c: c.map(order) if c.name == "predictor" else c)
 
 
