@@ -59,3 +59,10 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/bench_forces.py", *session.posargs)
     session.run("python", "benchmarks/bench_cvae.py", "--by-agents", "20")
     session.run("python", "benchmarks/bench_evaluate.py")
+
+
+@nox.session
+def convergence(session: nox.Session) -> None:
+    """Learning curves and time-to-accuracy of CVAE recipes on zara1 (long: see docs/cvae.md for the time)."""
+    session.install(*CONSTRAINTS, "-e", ".")
+    session.run("python", "benchmarks/bench_convergence.py", *session.posargs)

@@ -177,3 +177,30 @@ def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
     past, mask = torch.randn(3, 4, 8, FEATURE_DIMS["baseline"]), torch.tensor([[1, 1, 1, 0]] * 3, dtype=torch.bool)
     with torch.no_grad():
         torch.testing.assert_close(compiled.encode_past(past, mask)[0], plain.encode_past(past, mask)[0])
+
+
+def test_learning_rate_schedules_follow_the_step_budget() -> None:
+    from fftool.training import lr_factor
+
+    step = [lr_factor("step", e, 50, 0.0, 10, 0.5) for e in (0, 9.99, 10, 25, 49.5)]
+    assert step == [1.0, 1.0, 0.5, 0.25, 0.0625]  # StepLR(step_size=10, gamma=0.5), stepped per epoch
+    cosine = [lr_factor("cosine", e, 10, 0.1, 10, 0.5) for e in (0, 0.5, 1, 5.5, 10)]
+    assert cosine == pytest.approx([0.0, 0.5, 1.0, 0.5, 0.0], abs=1e-9)
+
+
+def test_a_cpu_recipe_builds_trains_and_logs(inputs: dict, tmp_path: Path) -> None:
+    """Every recipe option at once on a tiny model: trains, follows its schedule, writes TensorBoard events."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    recipe = {
+        "output": "cv_residual", "optimizer": "adamw", "weight_decay": 0.01, "schedule": "cosine",
+        "warmup_fraction": 0.2, "grad_clip": 1.0, "out_init_std": 0.001, "epochs": 3, "variant": "dr",
+    }  # fmt: skip
+    stats = _train(inputs, tmp_path, "recipe", TINY.model_copy(update=recipe))
+    log = stats["log"]
+    assert [row["lr"] for row in log][-1] < log[0]["lr"] <= TINY.lr  # cosine: falls to ~0 at the end
+    assert all(b["agent_windows_seen"] > a["agent_windows_seen"] for a, b in itertools.pairwise(log))
+    events = EventAccumulator(str(tmp_path / "recipe" / "tensorboard"))
+    events.Reload()
+    assert [e.value for e in events.Scalars("val_min_ade@3_m")] == pytest.approx([r["val_min_ade@3_m"] for r in log])
+    assert {"train_recon", "train_kl", "train_best_of_k", "lr"} <= set(events.Tags()["scalars"])

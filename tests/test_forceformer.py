@@ -216,3 +216,30 @@ def test_sharing_the_context_between_samples_equals_repeating_it() -> None:
         shared = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, position_features, repeat=k)
         copied = model.decode(z, rep(past[:, :, -1, :2]), rep(context), rep(mask), 12, position_features)
     torch.testing.assert_close(shared[rep(mask)], copied[rep(mask)], atol=1e-5, rtol=1e-5)
+
+
+def test_output_types_read_the_head_as_documented() -> None:
+    """With a zero head each output type decodes its anchor; a constant head shows what it accumulates."""
+    g = torch.Generator().manual_seed(3)
+    past, mask = torch.randn(1, 2, 8, 4, generator=g), torch.ones(1, 2, dtype=torch.bool)
+    z, last, step = torch.randn(1, 2, 8, generator=g), past[:, :, -1, :2], torch.tensor([[[0.1, 0.2], [-0.3, 0.0]]])
+    steps = torch.arange(1, 13, dtype=torch.float32)[None, None, :, None]
+    expected = {
+        "offset": last[:, :, None] + 0.5,
+        "scene_norm": torch.full((1, 2, 12, 2), 0.5),
+        "velocity": last[:, :, None] + 0.5 * steps,
+        "cv_residual": last[:, :, None] + steps * step[:, :, None] + 0.5,
+    }
+    for output, positions in expected.items():
+        torch.manual_seed(0)
+        model = ForceFormer(input_dim=4, decoder_dim=2, output=output, **SMALL).eval()
+        torch.nn.init.zeros_(model.out.weight)
+        torch.nn.init.constant_(model.out.bias, 0.5)
+        context, _ = model.encode_past(past, mask)
+        out = model.decode(z, last, context, mask, 12, position_features, last_step=step)
+        torch.testing.assert_close(out, positions.expand_as(out), msg=output)
+
+
+def test_the_output_head_init_is_a_parameter() -> None:
+    wide = ForceFormer(input_dim=4, decoder_dim=2, out_init_std=1.0, **SMALL)
+    assert 0.5 < float(wide.out.weight.std()) < 1.5 and float(_model().out.weight.std()) < 0.02

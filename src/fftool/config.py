@@ -157,11 +157,23 @@ class CVAEConfig(_Section):
     z_dim: int = Field(32, gt=0)
     k: int = Field(20, gt=0)  # samples from the prior at test time and in the best-of-K loss
     kl_min: float = Field(2.0, ge=0)  # free bits on the per-agent KL (AgentFormer's min_clip)
+    # The decoder head's meaning (models/forceformer.py OutputType): AgentFormer's "offset" (sn_out_type
+    # 'norm'), "scene_norm" or "velocity" ('vel'), or fftool's "cv_residual" (over constant velocity).
+    output: Literal["offset", "scene_norm", "velocity", "cv_residual"] = "offset"
+    out_init_std: float = Field(0.01, ge=0)  # the output head's N(0, std²) init (AgentFormer: 0.01)
     # Training (AgentFormer: Adam 1e-4, ×0.5 every 10 epochs; ForceFormer trains 50 epochs).
     epochs: int = Field(50, gt=0)
     lr: float = Field(1e-4, gt=0)
+    optimizer: Literal["adam", "adamw"] = "adam"
+    weight_decay: float = Field(0.0, ge=0)  # AdamW's decoupled decay (ignored by adam)
+    # step: lr × decay_gamma every decay_every epochs (AgentFormer). cosine: linear warm-up over the first
+    # warmup_fraction of the optimizer steps, then a half cosine to 0 at the end of the last epoch. Both
+    # are functions of the step count, never of wall-clock time.
+    schedule: Literal["step", "cosine"] = "step"
     decay_every: int = Field(10, gt=0)
     decay_gamma: float = Field(0.5, gt=0, le=1)
+    warmup_fraction: float = Field(0.0, ge=0, lt=1)
+    grad_clip: float = Field(0.0, ge=0)  # max global gradient norm; 0 = no clipping (AgentFormer)
     batch_windows: int = Field(32, gt=0)  # windows per optimizer step at most (the official code: 1)
     max_agent_pairs: int = Field(4096, gt=0)  # and at most this many windows × agents² per step (memory)
     train_k: int = Field(20, gt=0)  # prior samples in the best-of-K loss during training

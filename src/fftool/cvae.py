@@ -1,8 +1,9 @@
 """Train the AgentFormer CVAE with a ForceFormer input variant on one leave-one-out benchmark.
 
 Reads: windows and forces (training goals are the ground truth). Writes: `cvae/<fp>/model.pt` (best
-weights by validation minADE, the resolved config, everything needed to rebuild the model) and
-`log.csv`. Run: `fftool train-cvae --benchmark zara1 --variant dr`.
+weights by validation minADE, the resolved config, everything needed to rebuild the model),
+`log.csv` and the same per-epoch curves as TensorBoard events in `tensorboard/` (written live to the
+scratch folder while training: `tensorboard --logdir <root>`). Run: `fftool train-cvae --benchmark zara1 --variant dr`.
 
 Many windows are batched per optimizer step (padded agents, masked attention and losses) instead of
 the official one-window-at-a-time loop. A checkpoint is written after every epoch to the store's
@@ -12,6 +13,7 @@ redoes that epoch and ends with the same weights as an uninterrupted run.
 
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,19 +21,27 @@ from typing import Any, Final
 
 import numpy as np
 import torch
+from torch.utils.tensorboard import SummaryWriter
 
 from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.cvaenet import autocast, build_model, sample
 from fftool.models.forceformer import ForceFormer, cvae_loss
-from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
+from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE, TENSORBOARD_DIR
 from fftool.store import Artifact
-from fftool.training import generator, resume, save_checkpoint, save_progress, write_csv
+from fftool.training import generator, lr_factor, resume, save_checkpoint, save_progress, write_csv
 from fftool.trajfeatures import Prepared, decoder_features, prepare
 
 NAME: Final = "cvae"
 VERSION: Final = 1
 INPUTS: Final = ("windows", "forces")
+
+
+def make_optimizer(model: ForceFormer, cfg: CVAEConfig) -> torch.optim.Optimizer:
+    """Adam (AgentFormer) or AdamW with decoupled weight decay; the learning rate is set every step."""
+    if cfg.optimizer == "adamw":
+        return torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    return torch.optim.Adam(model.parameters(), lr=cfg.lr)
 
 
 def training_loss(
@@ -50,12 +60,34 @@ def training_loss(
             prepared.agent_mask,
             Tf,
             decoder_features(cfg.variant, prepared, forces_cfg, dt_s),
+            last_step=prepared.last_step,
         )
         samples = sample(model, prepared, cfg, forces_cfg, dt_s, cfg.train_k, gen, (tokens, agent_context))
     return cvae_loss(recon, prepared.future_pos, q, p, samples, prepared.agent_mask, cfg.kl_min)
 
 
 @torch.no_grad()
+def val_metrics(
+    scenes: SceneSet,
+    windows: np.ndarray,
+    cfg: CVAEConfig,
+    obs_len: int,
+    device: torch.device,
+    predict: Callable[[Prepared], torch.Tensor],
+) -> tuple[float, float]:
+    """minADE_K and minFDE_K (metres, minima per agent, independent) of `predict`'s (B, K, A, Tf, 2)
+    futures in the normalised frame (rotation-free here: metres as is), ground-truth goals."""
+    ade, fde, count = 0.0, 0.0, 0
+    for members in scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0)):
+        prepared = prepare(scenes.batch(members).to(device), cfg.variant, obs_len)
+        error = torch.linalg.vector_norm(predict(prepared) - prepared.future_pos[:, None], dim=-1)  # (B, K, A, Tf)
+        mask = prepared.agent_mask
+        ade += float((error.mean(-1).min(1).values * mask).sum())
+        fde += float((error[..., -1].min(1).values * mask).sum())
+        count += int(mask.sum())
+    return ade / max(count, 1), fde / max(count, 1)
+
+
 def validate(
     model: ForceFormer,
     scenes: SceneSet,
@@ -66,20 +98,19 @@ def validate(
     obs_len: int,
     device: torch.device,
 ) -> tuple[float, float]:
-    """minADE_K and minFDE_K (metres, minima per agent, independent) with ground-truth goals."""
+    """The model's validation minADE_K / minFDE_K with K = cfg.k prior samples."""
     model.eval()
     gen = generator(cfg.seed, device)
-    ade, fde, count = 0.0, 0.0, 0
-    for members in scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0)):
-        batch = scenes.batch(members).to(device)
-        prepared = prepare(batch, cfg.variant, obs_len)
-        futures = sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen)  # rotation-free: metres as is
-        error = torch.linalg.vector_norm(futures - prepared.future_pos[:, None], dim=-1)  # (B, K, A, Tf)
-        mask = prepared.agent_mask
-        ade += float((error.mean(-1).min(1).values * mask).sum())
-        fde += float((error[..., -1].min(1).values * mask).sum())
-        count += int(mask.sum())
-    return ade / max(count, 1), fde / max(count, 1)
+    return val_metrics(
+        scenes, windows, cfg, obs_len, device, lambda prepared: sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen)
+    )
+
+
+def val_windows(scenes: SceneSet, cfg: CVAEConfig) -> np.ndarray:
+    """The fixed validation subset: `val_max_windows` windows drawn with the run's seed (all if 0)."""
+    if cfg.val_max_windows and scenes.windows > cfg.val_max_windows:
+        return np.sort(np.random.default_rng(cfg.seed).choice(scenes.windows, cfg.val_max_windows, replace=False))
+    return np.arange(scenes.windows)
 
 
 def build(
@@ -106,16 +137,16 @@ def build(
     dt_s = float(forces.manifest.stats["dt_s"])  # the time step the stored forces were computed with
     train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride)
     val = load_scene_set(windows, forces, benchmark, "val")
-    val_windows = np.arange(val.windows)
-    if cfg.val_max_windows and val.windows > cfg.val_max_windows:
-        val_windows = np.sort(np.random.default_rng(cfg.seed).choice(val.windows, cfg.val_max_windows, replace=False))
+    val_subset = val_windows(val, cfg)
 
     torch.manual_seed(cfg.seed)
     model = build_model(cfg).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.decay_every, gamma=cfg.decay_gamma)
-    stateful = {"model": model, "optimizer": optimizer, "scheduler": scheduler}
+    optimizer = make_optimizer(model, cfg)
+    stateful = {"model": model, "optimizer": optimizer}
     progress = resume(scratch / "last.pt", device, stateful)
+    seen = progress.log[-1] if progress.log else {"agent_windows_seen": 0, "train_seconds": 0.0}
+    seen_agents, seen_seconds = int(seen["agent_windows_seen"]), float(seen["train_seconds"])
+    board = SummaryWriter(scratch / TENSORBOARD_DIR, purge_step=progress.start_epoch + 1)
 
     n_windows = min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows
     started = time.perf_counter()
@@ -135,18 +166,27 @@ def build(
             parts = training_loss(model, prepared, cfg, forces_cfg, dt_s, gen)
             optimizer.zero_grad(set_to_none=True)
             parts.total.backward()
+            if cfg.grad_clip:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            factor = lr_factor(
+                cfg.schedule, epoch + step / steps, cfg.epochs, cfg.warmup_fraction, cfg.decay_every, cfg.decay_gamma
+            )
+            for group in optimizer.param_groups:
+                group["lr"] = cfg.lr * factor
             optimizer.step()
             agents += int(prepared.agent_mask.sum())
             for name, value in zip(("loss", "recon", "kl", "best_of_k"), parts):
                 sums[name] += value.item() / steps
             if on_progress:
                 on_progress(f"epoch {epoch + 1}/{cfg.epochs}", step + 1, steps)
-        scheduler.step()
         train_s = time.perf_counter() - tic
-        ade, fde = validate(model, val, val_windows, cfg, forces_cfg, dt_s, obs_len, device)
+        seen_agents, seen_seconds = seen_agents + agents, seen_seconds + train_s
+        ade, fde = validate(model, val, val_subset, cfg, forces_cfg, dt_s, obs_len, device)
         row = {
             "epoch": epoch + 1,
             "seconds": round(time.perf_counter() - tic, 3),
+            "train_seconds": round(seen_seconds, 3),
+            "agent_windows_seen": seen_agents,
             "agent_windows_per_s": round(agents / train_s, 2),
             "lr": optimizer.param_groups[0]["lr"],
             **{f"train_{name}": value for name, value in sums.items()},
@@ -154,9 +194,15 @@ def build(
             f"val_min_fde@{cfg.k}_m": fde,
         }
         progress.record(row, ade, model)
+        for name, value in row.items():
+            if name != "epoch":
+                board.add_scalar(name, value, epoch + 1)
+        board.flush()
         if on_epoch:
             on_epoch(row)
         save_progress(scratch / "last.pt", progress, epoch, stateful)
+    board.close()
+    shutil.copytree(scratch / TENSORBOARD_DIR, out_dir / TENSORBOARD_DIR)
 
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,
@@ -177,7 +223,7 @@ def build(
         "device": str(device),
         "train_windows": train.windows,
         "train_windows_per_epoch": n_windows,
-        "val_windows": len(val_windows),
+        "val_windows": len(val_subset),
         "best_epoch": progress.best_epoch,
         f"best_val_min_ade@{cfg.k}_m": progress.best_metric,
         "resumed_from_epoch": progress.start_epoch,

@@ -26,6 +26,8 @@ def build_model(cfg: CVAEConfig) -> ForceFormer:
         dropout=cfg.dropout,
         n_layers=cfg.n_layers,
         z_dim=cfg.z_dim,
+        output=cfg.output,
+        out_init_std=cfg.out_init_std,
     )
     if cfg.compile:  # in place: parameter names (and saved checkpoints) stay the same
         for layer in (*model.encoder, *model.future_encoder, *model.decoder):
@@ -57,7 +59,9 @@ def sample(
         z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_)
         features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
         last = rep(prepared.past_pos[:, :, -1])
-        out = model.decode(z, last, tokens, rep(prepared.agent_mask), Tf, features, repeat=k)
+        out = model.decode(
+            z, last, tokens, rep(prepared.agent_mask), Tf, features, repeat=k, last_step=rep(prepared.last_step)
+        )
     return out.view(B, k, A, Tf, 2)
 
 

@@ -108,6 +108,7 @@ GOAL_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term and the v
 # --- cvae artifact (a trained ForceFormer/AgentFormer CVAE) ---------------------------------------------
 CVAE_MODEL_FILE: Final = "model.pt"  # {"state_dict", "config", "forces_config", "benchmark", "best_epoch", ...}
 CVAE_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term, validation minADE/minFDE
+TENSORBOARD_DIR: Final = "tensorboard"  # the same per-epoch rows as TensorBoard event files
 
 # --- evaluate artifact (one predictor scored on one benchmark part) ------------------------------------
 # predictions.parquet: one row per valid agent-window in agent_windows order: window_id, ped_id,

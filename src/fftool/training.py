@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import os
 import random
 from dataclasses import dataclass, field
@@ -24,6 +25,23 @@ def generator(seed: int, device: torch.device) -> torch.Generator:
     gen = torch.Generator(device=device)
     gen.manual_seed(seed)
     return gen
+
+
+def lr_factor(
+    schedule: str, progress: float, epochs: int, warmup_fraction: float, decay_every: int, decay_gamma: float
+) -> float:
+    """The learning-rate multiplier after `progress` epochs (fractional) of an `epochs`-epoch budget.
+
+    step: decay_gamma ** (finished epochs // decay_every), as torch's StepLR stepped once per epoch.
+    cosine: linear warm-up over the first warmup_fraction of the budget, then half a cosine to 0. Defined
+    by the step count alone, so a run's schedule never depends on how fast the machine is.
+    """
+    if schedule == "step":
+        return decay_gamma ** (int(progress) // decay_every)
+    t = progress / epochs
+    if t < warmup_fraction:
+        return t / warmup_fraction
+    return 0.5 * (1 + math.cos(math.pi * (t - warmup_fraction) / (1 - warmup_fraction)))
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:

@@ -42,6 +42,11 @@ class Prepared:
     origin: Tensor  # (B, 2) world
     rotation: Tensor  # (B, 2, 2) normalised = R (world - origin)
 
+    @property
+    def last_step(self) -> Tensor:
+        """(B, A, 2) the last observed displacement: what constant velocity extrapolates."""
+        return self.past_pos[:, :, -1] - self.past_pos[:, :, -2]
+
     def to_world(self, positions: Tensor) -> Tensor:
         """(B, ..., A, T, 2) normalised positions back to world metres (leading sample dims allowed)."""
         R = self.rotation.view(self.rotation.shape[0], *([1] * (positions.dim() - 3)), 2, 2)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -277,6 +277,14 @@ def kl_divergence(q: Gaussian, p: Gaussian) -> Tensor:
 StepFeatures = Callable[[Tensor, int], Tensor]
 """(positions so far (B, A, s, 2) incl. the last observed, step index s - 1) -> decoder features (B, A, F)."""
 
+OutputType = Literal["offset", "scene_norm", "velocity", "cv_residual"]
+"""What the decoder's 2-vector at step s means (docs/cvae.md, "Output parametrisation"):
+offset: position - last observed position (AgentFormer's sn_out_type 'norm', its zara1 default);
+scene_norm: the position itself in the window's frame (AgentFormer's 'scene_norm');
+velocity: the step's displacement, accumulated from the last observed position (AgentFormer's 'vel');
+cv_residual: position - the constant-velocity extrapolation of the last observed step (fftool's option).
+"""
+
 
 class ForceFormer(nn.Module):
     """The CVAE: X-encoder, Y-encoder (posterior), learned prior, autoregressive decoder."""
@@ -292,9 +300,11 @@ class ForceFormer(nn.Module):
         dropout: float = 0.1,
         n_layers: int = 2,
         z_dim: int = 32,
+        output: OutputType = "offset",
+        out_init_std: float = 0.01,
     ) -> None:
         super().__init__()
-        self.z_dim = z_dim
+        self.z_dim, self.output = z_dim, output
         self.past_embed = TimeEmbedding(input_dim, d_model, dropout)
         self.future_embed = TimeEmbedding(input_dim, d_model, dropout)
         self.decoder_embed = TimeEmbedding(decoder_dim + z_dim, d_model, dropout)
@@ -303,9 +313,11 @@ class ForceFormer(nn.Module):
         self.decoder = nn.ModuleList(DecoderLayer(d_model, n_heads, d_ff, dropout) for _ in range(n_layers))
         self.q_head, self.p_head = nn.Linear(d_model, 2 * z_dim), nn.Linear(d_model, 2 * z_dim)
         self.out = nn.Linear(d_model, 2)
-        for head in (self.q_head, self.p_head, self.out):  # N(0, 0.01²), zero bias: prior ≈ N(0, I) at init
+        for head in (self.q_head, self.p_head):  # N(0, 0.01²), zero bias: prior ≈ N(0, I) at init
             nn.init.normal_(head.weight, std=0.01)
             nn.init.zeros_(head.bias)
+        nn.init.normal_(self.out.weight, std=out_init_std)  # AgentFormer: 0.01
+        nn.init.zeros_(self.out.bias)
 
     # --- encode -----------------------------------------------------------------------------------
 
@@ -342,8 +354,10 @@ class ForceFormer(nn.Module):
         steps: int,
         features: StepFeatures,
         repeat: int = 1,
+        last_step: Tensor | None = None,
     ) -> Tensor:
-        """Autoregressive rollout: (B, A, steps, 2) positions, each an offset from the last observed one.
+        """Autoregressive rollout: (B, A, steps, 2) positions, read from the output head as `self.output`
+        says (last_step (B, A, 2), the last observed displacement, is needed for "cv_residual").
 
         At step s the decoder reads every earlier step of every agent (and the same step of others) plus
         the whole context; its own outputs are fed back detached, through `features`, which also lets
@@ -366,6 +380,10 @@ class ForceFormer(nn.Module):
         allowed_all = agent_mask.repeat(1, steps)[:, None, :].expand(B, A, steps * A).clone()
         allowed_all.view(B, A, steps, A).diagonal(dim1=1, dim2=3).fill_(True)  # own tokens, every step
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
+        anchor = last_pos.new_zeros(last_pos.shape) if self.output == "scene_norm" else last_pos
+        if self.output == "cv_residual":
+            assert last_step is not None, "output 'cv_residual' needs the last observed step"
+        travelled = last_pos.new_zeros(last_pos.shape)  # "velocity": the sum of the steps so far
         outputs = []
         for step in range(steps):
             tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
@@ -375,7 +393,12 @@ class ForceFormer(nn.Module):
                 queries, new_keys = layer.self_attn.project(x)
                 self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
-            outputs.append(last_pos + self.out(x).float())  # (B, A, 2)
+            delta = self.out(x).float()  # (B, A, 2)
+            if self.output == "velocity":
+                travelled = delta = travelled + delta
+            elif self.output == "cv_residual":
+                delta = delta + (step + 1) * last_step
+            outputs.append(anchor + delta)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
 
