@@ -182,10 +182,13 @@ def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
 def test_learning_rate_schedules_follow_the_step_budget() -> None:
     from fftool.training import lr_factor
 
-    step = [lr_factor("step", e, 50, 0.0, 10, 0.5) for e in (0, 9.99, 10, 25, 49.5)]
+    cosine = [lr_factor("cosine", step, 100, 0.1) for step in range(100)]
+    assert cosine[0] == pytest.approx(0.1) and cosine[9] == pytest.approx(1.0)  # linear warm-up over 10 steps
+    assert cosine[10] == pytest.approx(1.0) and cosine[55] == pytest.approx(0.5)
+    assert (np.diff(cosine[9:]) <= 0).all() and cosine[-1] < 1e-3
+    assert [lr_factor("constant", step, 100, 0.1) for step in (0, 50)] == [pytest.approx(0.1), 1.0]
+    step = [lr_factor("step", 0, 100, 0.0, epoch, 10, 0.5) for epoch in (0, 9, 10, 25, 49)]
     assert step == [1.0, 1.0, 0.5, 0.25, 0.0625]  # StepLR(step_size=10, gamma=0.5), stepped per epoch
-    cosine = [lr_factor("cosine", e, 10, 0.1, 10, 0.5) for e in (0, 0.5, 1, 5.5, 10)]
-    assert cosine == pytest.approx([0.0, 0.5, 1.0, 0.5, 0.0], abs=1e-9)
 
 
 def test_a_cpu_recipe_builds_trains_and_logs(inputs: dict, tmp_path: Path) -> None:

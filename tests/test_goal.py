@@ -9,9 +9,11 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from fftool import goal, pipeline
+from fftool import goal, goalnet, pipeline
+from fftool.batches import SceneMaps
 from fftool.cli import app
 from fftool.config import GoalConfig, GoalsConfig, load_config
+from fftool.heatmaps import softargmax
 from fftool.store import ArtifactStore
 
 from .test_maps import make_scene
@@ -106,3 +108,26 @@ def test_the_cli_trains_samples_and_prints_the_tables(raw_tree: Path, tmp_path: 
     goals = np.load(next((Path(root) / "goals").iterdir()) / "goals.npy")
     assert goals.shape[1:] == (20, 2) and np.isfinite(goals).all()
     assert runner.invoke(app, ["train-goal", "-b", "atlantis", *common]).exit_code == 2
+
+
+def test_the_cv_channel_and_adamw_cosine_train(inputs: dict, tmp_path: Path) -> None:
+    cfg = TINY.model_copy(
+        update={"epochs": 2, "cv_channel": True, "optimizer": "adamw", "weight_decay": 0.01, "schedule": "cosine"}
+    )
+    stats = _train(inputs, tmp_path, "cv", cfg)
+    saved = torch.load(tmp_path / "cv" / "model.pt", weights_only=True)
+    assert saved["in_channels"] == 8 + 1 + 6
+    assert np.isfinite([row["train_loss"] for row in stats["log"]]).all()
+
+
+def test_aligned_crops_turn_any_heading_to_plus_col() -> None:
+    steps = torch.arange(8.0)[:, None]
+    paths = torch.stack([steps * torch.tensor([0.1, 0.0]), steps * torch.tensor([-0.06, 0.08])]) + 3.0  # 0.1 m/step
+    maps = SceneMaps(torch.zeros(1, 2, 4, 4), torch.zeros(1, 2), 0.5, ())
+    cfg = TINY.model_copy(update={"align_heading": True, "cv_channel": True})
+    zeros = torch.zeros(2)
+    x, _, _ = goalnet.goal_inputs(paths, torch.zeros(2, dtype=torch.long), maps, cfg, zeros, zeros.bool(), 12)
+    assert x.shape == (2, 8 + 1 + 2, 16, 16)
+    torch.testing.assert_close(x[0], x[1], atol=1e-5, rtol=0)  # the two headings give one picture
+    cv_cell = softargmax(torch.log(x[:, 8].clamp_min(1e-30)))  # 12 · 0.1 m = 2.4 cells ahead of 7.5
+    torch.testing.assert_close(cv_cell, torch.tensor([[9.9, 7.5], [9.9, 7.5]]), atol=1e-3, rtol=0)

@@ -118,6 +118,17 @@ class GoalConfig(_Section):
     batch_size: int = Field(64, gt=0)
     lr: float = Field(1e-4, gt=0)  # Adam, as Goal-SAR
     grad_clip: float = Field(1.0, gt=0)
+    # Departures for short budgets (docs/goal.md): AdamW's decoupled decay, and a linear warm-up over
+    # `warmup_fraction` of the optimizer steps followed by a cosine decay to 0 at the last step.
+    optimizer: Literal["adam", "adamw"] = "adam"
+    weight_decay: float = Field(0.0, ge=0)
+    schedule: Literal["constant", "cosine"] = "constant"
+    warmup_fraction: float = Field(0.0, ge=0, lt=1)
+    # An extra input heat map at the constant-velocity goal (not in Goal-SAR; docs/goal.md).
+    cv_channel: bool = False
+    # Turn every crop so the last observed velocity points along +col (not in Goal-SAR); training then
+    # augments with the mirror only.
+    align_heading: bool = False
     # Training windows: every `train_stride`-th start step (Goal-SAR uses 5), at most `max_train` per epoch.
     train_stride: int = Field(5, gt=0)
     max_train: int = Field(0, ge=0)  # 0 = all

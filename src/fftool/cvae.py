@@ -29,7 +29,16 @@ from fftool.cvaenet import autocast, build_model, sample
 from fftool.models.forceformer import ForceFormer, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE, TENSORBOARD_DIR
 from fftool.store import Artifact
-from fftool.training import generator, lr_factor, resume, save_checkpoint, save_progress, write_csv
+from fftool.training import (
+    generator,
+    lr_factor,
+    make_optimizer,
+    resume,
+    save_checkpoint,
+    save_progress,
+    set_lr,
+    write_csv,
+)
 from fftool.trajfeatures import Prepared, decoder_features, prepare
 
 NAME: Final = "cvae"
@@ -37,11 +46,12 @@ VERSION: Final = 1
 INPUTS: Final = ("windows", "forces")
 
 
-def make_optimizer(model: ForceFormer, cfg: CVAEConfig) -> torch.optim.Optimizer:
-    """Adam (AgentFormer) or AdamW with decoupled weight decay; the learning rate is set every step."""
-    if cfg.optimizer == "adamw":
-        return torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    return torch.optim.Adam(model.parameters(), lr=cfg.lr)
+def epoch_plan(
+    train: SceneSet, cfg: CVAEConfig, epoch: int, n_windows: int
+) -> tuple[list[np.ndarray], np.random.Generator]:
+    """The batches of one epoch (seeded by (seed, epoch)) and the generator that goes on to draw agent caps."""
+    rng = np.random.default_rng(cfg.seed * 100_003 + epoch)
+    return train.plan(rng.permutation(train.windows)[:n_windows], cfg.batch_windows, cfg.max_agent_pairs, rng), rng
 
 
 def training_loss(
@@ -102,7 +112,12 @@ def validate(
     model.eval()
     gen = generator(cfg.seed, device)
     return val_metrics(
-        scenes, windows, cfg, obs_len, device, lambda prepared: sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen)
+        scenes,
+        windows,
+        cfg,
+        obs_len,
+        device,
+        lambda prepared: sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen),
     )
 
 
@@ -141,7 +156,7 @@ def build(
 
     torch.manual_seed(cfg.seed)
     model = build_model(cfg).to(device)
-    optimizer = make_optimizer(model, cfg)
+    optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
     stateful = {"model": model, "optimizer": optimizer}
     progress = resume(scratch / "last.pt", device, stateful)
     seen = progress.log[-1] if progress.log else {"agent_windows_seen": 0, "train_seconds": 0.0}
@@ -149,15 +164,16 @@ def build(
     board = SummaryWriter(scratch / TENSORBOARD_DIR, purge_step=progress.start_epoch + 1)
 
     n_windows = min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows
+    steps_per_epoch = [len(epoch_plan(train, cfg, epoch, n_windows)[0]) for epoch in range(cfg.epochs)]
+    total_steps = sum(steps_per_epoch)  # the schedule's budget, known before the first step
     started = time.perf_counter()
     for epoch in range(progress.start_epoch, cfg.epochs):
         model.train()
         tic = time.perf_counter()
         torch.manual_seed(cfg.seed * 100_003 + epoch)  # dropout and sampling noise of this epoch
-        rng = np.random.default_rng(cfg.seed * 100_003 + epoch)
         gen = generator(cfg.seed * 100_003 + epoch, device)
-        plan = train.plan(rng.permutation(train.windows)[:n_windows], cfg.batch_windows, cfg.max_agent_pairs, rng)
-        steps = len(plan)
+        plan, rng = epoch_plan(train, cfg, epoch, n_windows)
+        steps, first_step = len(plan), sum(steps_per_epoch[:epoch])
         sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0}
         agents = 0
         for step, members in enumerate(plan):
@@ -169,10 +185,15 @@ def build(
             if cfg.grad_clip:
                 torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
             factor = lr_factor(
-                cfg.schedule, epoch + step / steps, cfg.epochs, cfg.warmup_fraction, cfg.decay_every, cfg.decay_gamma
+                cfg.schedule,
+                first_step + step,
+                total_steps,
+                cfg.warmup_fraction,
+                epoch,
+                cfg.decay_every,
+                cfg.decay_gamma,
             )
-            for group in optimizer.param_groups:
-                group["lr"] = cfg.lr * factor
+            set_lr(optimizer, cfg.lr * factor)
             optimizer.step()
             agents += int(prepared.agent_mask.sum())
             for name, value in zip(("loss", "recon", "kl", "best_of_k"), parts):

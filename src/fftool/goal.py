@@ -18,11 +18,21 @@ import torch
 
 from fftool.batches import load_agent_windows, load_scene_maps
 from fftool.config import GoalConfig, GoalsConfig
-from fftool.goalnet import build_model, evaluate, goal_inputs, goal_loss
+from fftool.goalnet import build_model, evaluate, goal_inputs, goal_loss, input_channels
 from fftool.heatmaps import world_to_cells
 from fftool.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
 from fftool.store import Artifact
-from fftool.training import generator, resume, save_checkpoint, save_progress, seed_all, write_csv
+from fftool.training import (
+    generator,
+    lr_factor,
+    make_optimizer,
+    resume,
+    save_checkpoint,
+    save_progress,
+    seed_all,
+    set_lr,
+    write_csv,
+)
 
 NAME: Final = "goal"
 VERSION: Final = 1
@@ -53,6 +63,7 @@ def build(
     """
     seed_all(cfg.seed)
     obs_len = int(windows.manifest.stats["obs_len"])
+    pred_len = int(windows.manifest.stats["pred_len"])
     train = load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
     val = load_agent_windows(windows, benchmark, "val")
     if cfg.val_max and len(val) > cfg.val_max:
@@ -62,13 +73,14 @@ def build(
     train_scene, val_scene = scene_maps.index_of_sources(train.source), scene_maps.index_of_sources(val.source)
     train_xy = torch.as_tensor(train.xy, dtype=torch.float32)
 
-    model = build_model(cfg, obs_len + scene_maps.channels).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    in_channels = input_channels(cfg, obs_len, scene_maps.channels)
+    model = build_model(cfg, in_channels).to(device)
+    n_train = min(len(train), cfg.max_train) if cfg.max_train else len(train)
+    batches = -(-n_train // cfg.batch_size)
+    optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
     stateful = {"model": model, "optimizer": optimizer}
     progress = resume(scratch / "last.pt", device, stateful)
 
-    n_train = min(len(train), cfg.max_train) if cfg.max_train else len(train)
-    batches = -(-n_train // cfg.batch_size)
     started = time.perf_counter()
     for epoch in range(progress.start_epoch, cfg.epochs):
         model.train()
@@ -81,22 +93,34 @@ def build(
             xy = train_xy[index].to(device)
             angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
             mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
+            if not cfg.augment or cfg.align_heading:
+                angle = torch.zeros_like(angle)
             if not cfg.augment:
-                angle, mirror = torch.zeros_like(angle), torch.zeros_like(mirror)
+                mirror = torch.zeros_like(mirror)
             x, center, R = goal_inputs(
-                xy[:, :obs_len], train_scene[index].to(device), scene_maps, cfg, angle.to(device), mirror.to(device)
+                xy[:, :obs_len],
+                train_scene[index].to(device),
+                scene_maps,
+                cfg,
+                angle.to(device),
+                mirror.to(device),
+                pred_len,
             )
             goal_cells = world_to_cells(xy[:, -1:], center, R, cfg.resolution_m, cfg.crop_cells)[:, 0]
             loss, bce, mse = goal_loss(model(x), goal_cells, cfg)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            set_lr(
+                optimizer,
+                cfg.lr * lr_factor(cfg.schedule, epoch * batches + b, cfg.epochs * batches, cfg.warmup_fraction),
+            )
             optimizer.step()
             for name, value in (("loss", loss), ("bce", bce), ("mse", mse)):
                 sums[name] += value.item() / batches
             if on_progress:
                 on_progress(f"epoch {epoch + 1}/{cfg.epochs}", b + 1, batches)
-        fde_k, fde_1 = evaluate(model, val, val_scene, scene_maps, cfg, goals_cfg, device, cfg.seed, obs_len)
+        fde_k, fde_1 = evaluate(model, val, val_scene, scene_maps, cfg, goals_cfg, device, cfg.seed, obs_len, pred_len)
         row = {
             "epoch": epoch + 1,
             "seconds": round(time.perf_counter() - tic, 3),
@@ -115,7 +139,7 @@ def build(
         out_dir / GOAL_MODEL_FILE,
         {
             "state_dict": progress.best_state,
-            "in_channels": obs_len + scene_maps.channels,
+            "in_channels": in_channels,
             "config": cfg.model_dump(mode="json"),
             "benchmark": benchmark,
             "best_epoch": progress.best_epoch,

@@ -15,6 +15,7 @@ from fftool.batches import AgentWindows, SceneMaps
 from fftool.config import GoalConfig, GoalsConfig
 from fftool.heatmaps import (
     cells_to_world,
+    constant_velocity_cells,
     gaussian_target,
     render,
     rotation,
@@ -29,13 +30,23 @@ from fftool.store import Artifact
 from fftool.training import generator
 
 
+def input_channels(cfg: GoalConfig, obs_len: int, map_channels: int) -> int:
+    return obs_len + int(cfg.cv_channel) + map_channels
+
+
 def goal_inputs(
-    obs: Tensor, scene: Tensor, maps: SceneMaps, cfg: GoalConfig, angle: Tensor, mirror: Tensor
+    obs: Tensor, scene: Tensor, maps: SceneMaps, cfg: GoalConfig, angle: Tensor, mirror: Tensor, pred_len: int
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """(B, 8 + C, S, S) network input, crop centres (B, 2) and crop rotations (B, 2, 2)."""
+    """(B, 8 [+ 1 CV] + C, S, S) network input, crop centres (B, 2) and crop rotations (B, 2, 2)."""
     S, res = cfg.crop_cells, cfg.resolution_m
+    if cfg.align_heading:
+        velocity = obs[:, -1] - obs[:, -2]
+        angle = angle + torch.atan2(velocity[:, 1], velocity[:, 0])
     center, R = obs[:, -1], rotation(angle, mirror)
-    heat = render(world_to_cells(obs, center, R, res, S), S, cfg.heatmap_sigma_cells)  # (B, 8, S, S)
+    cells = world_to_cells(obs, center, R, res, S)
+    if cfg.cv_channel:
+        cells = torch.cat([cells, constant_velocity_cells(cells, pred_len)[:, None]], 1)
+    heat = render(cells, S, cfg.heatmap_sigma_cells)  # (B, 8 [+ 1], S, S)
     crop = sample_scene(maps.stack, maps.origins, maps.resolution_m, scene, center, R, res, S)  # (B, C, S, S)
     return torch.cat([heat, crop.to(heat.dtype)], dim=1), center, R
 
@@ -68,10 +79,11 @@ def predict_goals(
     cfg: GoalConfig,
     goals_cfg: GoalsConfig,
     gen: torch.Generator,
+    pred_len: int,
 ) -> Tensor:
     """(B, K, 2) world goals, the map's mode first, for observed paths (B, 8, 2)."""
     zeros = torch.zeros(len(obs), device=obs.device, dtype=obs.dtype)
-    x, center, R = goal_inputs(obs, scene, maps, cfg, zeros, zeros.bool())
+    x, center, R = goal_inputs(obs, scene, maps, cfg, zeros, zeros.bool(), pred_len)
     logits = model(x)
     cells = sample_goals(
         logits,
@@ -102,6 +114,7 @@ def evaluate(
     device: torch.device,
     seed: int,
     obs_len: int,
+    pred_len: int,
 ) -> tuple[float, float]:
     """Mean goal-FDE@K and FDE@1 over `data` (no augmentation, fixed sampling seed)."""
     model.eval()
@@ -110,7 +123,7 @@ def evaluate(
     for start in range(0, len(data), cfg.batch_size * 4):
         index = slice(start, start + cfg.batch_size * 4)
         xy = torch.as_tensor(data.xy[index], dtype=torch.float32, device=device)
-        goals = predict_goals(model, xy[:, :obs_len], scene[index].to(device), maps, cfg, goals_cfg, gen)
+        goals = predict_goals(model, xy[:, :obs_len], scene[index].to(device), maps, cfg, goals_cfg, gen, pred_len)
         k, one = goal_fde(goals, xy[:, -1])
         fde_k.append(k)
         fde_1.append(one)

@@ -74,7 +74,9 @@ def build(
         for start in range(0, len(data), batch):
             xy = torch.as_tensor(data.xy[start : start + batch], dtype=torch.float32, device=device)
             obs, truth = xy[:, :obs_len], xy[:, -1]
-            goals = predict_goals(model, obs, scene[start : start + batch].to(device), scene_maps, goal_cfg, cfg, gen)
+            goals = predict_goals(
+                model, obs, scene[start : start + batch].to(device), scene_maps, goal_cfg, cfg, gen, pred_len
+            )
             cv = constant_velocity_goals(obs, pred_len, cfg.k, cfg, gen)
             for prefix, values in (("goal", goals), ("cv", cv)):
                 k, one = goal_fde(values, truth)

@@ -121,6 +121,11 @@ def _kmeans(points: Tensor, k: int, iterations: int) -> Tensor:
     return centres
 
 
+def constant_velocity_cells(obs_cells: Tensor, pred_len: int) -> Tensor:
+    """(B, T, 2) observed cells -> (B, 2): the last step's velocity extrapolated pred_len steps."""
+    return obs_cells[:, -1] + pred_len * (obs_cells[:, -1] - obs_cells[:, -2])
+
+
 def gaussian_target(cells: Tensor, size: int, sigma: float) -> Tensor:
     """(B, 2) goal cells -> (B, S, S) BCE target with peak 1."""
     return render(cells[:, None, :], size, sigma)[:, 0]

@@ -27,21 +27,42 @@ def generator(seed: int, device: torch.device) -> torch.Generator:
     return gen
 
 
-def lr_factor(
-    schedule: str, progress: float, epochs: int, warmup_fraction: float, decay_every: int, decay_gamma: float
-) -> float:
-    """The learning-rate multiplier after `progress` epochs (fractional) of an `epochs`-epoch budget.
+def make_optimizer(model: torch.nn.Module, name: str, lr: float, weight_decay: float) -> torch.optim.Optimizer:
+    """Adam (the papers' choice) or AdamW with decoupled weight decay; schedules then set the rate per step."""
+    if name == "adamw":
+        return torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
+    return torch.optim.Adam(model.parameters(), lr=lr)
 
-    step: decay_gamma ** (finished epochs // decay_every), as torch's StepLR stepped once per epoch.
-    cosine: linear warm-up over the first warmup_fraction of the budget, then half a cosine to 0. Defined
-    by the step count alone, so a run's schedule never depends on how fast the machine is.
+
+def set_lr(optimizer: torch.optim.Optimizer, lr: float) -> None:
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+
+
+def lr_factor(
+    schedule: str,
+    step: int,
+    total_steps: int,
+    warmup_fraction: float,
+    epoch: int = 0,
+    decay_every: int = 1,
+    decay_gamma: float = 1.0,
+) -> float:
+    """The learning-rate multiplier for optimizer step `step` (0-based) of a `total_steps` budget.
+
+    A linear warm-up over the first round(warmup_fraction · total_steps) steps, then: constant (1);
+    step (decay_gamma ** (epoch // decay_every), torch's StepLR stepped once per epoch); or cosine (half
+    a cosine from 1 to 0 over the remaining steps). A function of the step count alone, so a run's
+    schedule never depends on how fast the machine is.
     """
+    warmup = round(warmup_fraction * total_steps)
+    if step < warmup:
+        return (step + 1) / warmup
     if schedule == "step":
-        return decay_gamma ** (int(progress) // decay_every)
-    t = progress / epochs
-    if t < warmup_fraction:
-        return t / warmup_fraction
-    return 0.5 * (1 + math.cos(math.pi * (t - warmup_fraction) / (1 - warmup_fraction)))
+        return decay_gamma ** (epoch // decay_every)
+    if schedule == "constant":
+        return 1.0
+    return 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warmup) / max(1, total_steps - warmup))))
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
