@@ -22,10 +22,9 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_RAW = ROOT / ".." / "shared" / "data" / "eth_ucy" / "raw"
-DEFAULT_RECIPES = (
+DEFAULT_RECIPES = (  # add `--recipe cpu=pipelines/cpu.toml` for the cpu profile's curve (~30 min more)
     f"old-quick={ROOT / 'benchmarks' / 'recipes' / 'old_quick.toml'}",
     f"quick={ROOT / 'pipelines' / 'quick.toml'}",
-    f"cpu={ROOT / 'pipelines' / 'cpu.toml'}",
 )
 THRESHOLDS_M = (0.30, 0.25)
 
@@ -75,7 +74,9 @@ def _constant_velocity(args: argparse.Namespace, store, profile: Path) -> tuple[
     from fftool.protocols import constant_velocity
     from fftool.training import generator
 
-    cfg = load_config(profile, [f"data.raw_dir={str(args.raw.resolve())!r}", f"cvae.val_max_windows={args.val_windows}"])
+    cfg = load_config(
+        profile, [f"data.raw_dir={str(args.raw.resolve())!r}", f"cvae.val_max_windows={args.val_windows}"]
+    )
     built = pipeline.run(cfg, store, ["forces"])
     val = load_scene_set(built["windows"], built["forces"], args.benchmark, "val")
     noise, gen = EvaluateConfig(), generator(0, torch.device("cpu"))
@@ -134,8 +135,12 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=ROOT / "artifacts", help="artifact root for ingest/forces")
     parser.add_argument("--benchmark", default="zara1")
     parser.add_argument("--variant", default="baseline")
-    parser.add_argument("--recipe", action="append", metavar="NAME=PROFILE", help="repeatable; default: " + ", ".join(
-        spec.split("=")[0] for spec in DEFAULT_RECIPES))
+    parser.add_argument(
+        "--recipe",
+        action="append",
+        metavar="NAME=PROFILE",
+        help="repeatable; default: " + ", ".join(spec.split("=")[0] for spec in DEFAULT_RECIPES),
+    )
     parser.add_argument("--set", action="append", default=[], metavar="NAME:section.key=value")
     parser.add_argument("--val-windows", type=int, default=300, help="validation windows, the same for all")
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())

@@ -242,4 +242,4 @@ def test_output_types_read_the_head_as_documented() -> None:
 
 def test_the_output_head_init_is_a_parameter() -> None:
     wide = ForceFormer(input_dim=4, decoder_dim=2, out_init_std=1.0, **SMALL)
-    assert 0.5 < float(wide.out.weight.std()) < 1.5 and float(_model().out.weight.std()) < 0.02
+    assert 0.5 < float(wide.out.weight.detach().std()) < 1.5 and float(_model().out.weight.detach().std()) < 0.02
