@@ -200,7 +200,7 @@ def main() -> None:
             cells.append(f"{base / minutes:.1f}" if minutes and base else "")
         table.add_row(*cells)
     table.add_row("constant velocity@20", "", "", f"{cv[0]:.3f}", f"{cv[1]:.3f}")
-    Console().print(table)
+    Console(width=150).print(table)
     print(f"wrote {out.with_suffix('.csv')} and {out.with_suffix('.png')}")
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from typer.testing import CliRunner
 
 from fftool import goal, goalnet, pipeline
@@ -118,6 +119,9 @@ def test_the_cv_channel_and_adamw_cosine_train(inputs: dict, tmp_path: Path) -> 
     saved = torch.load(tmp_path / "cv" / "model.pt", weights_only=True)
     assert saved["in_channels"] == 8 + 1 + 6
     assert np.isfinite([row["train_loss"] for row in stats["log"]]).all()
+    events = EventAccumulator(str(tmp_path / "cv" / "tensorboard"))
+    events.Reload()  # the same curves as log.csv, as TensorBoard scalars
+    assert [e.value for e in events.Scalars("train_loss")] == pytest.approx([row["train_loss"] for row in stats["log"]])
 
 
 def test_aligned_crops_turn_any_heading_to_plus_col() -> None:

@@ -13,7 +13,6 @@ redoes that epoch and ends with the same weights as an uninterrupted run.
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -21,15 +20,15 @@ from typing import Any, Final
 
 import numpy as np
 import torch
-from torch.utils.tensorboard import SummaryWriter
 
 from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.cvaenet import autocast, build_model, sample
 from fftool.models.forceformer import ForceFormer, cvae_loss
-from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE, TENSORBOARD_DIR
+from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
 from fftool.training import (
+    Curves,
     generator,
     lr_factor,
     make_optimizer,
@@ -161,7 +160,7 @@ def build(
     progress = resume(scratch / "last.pt", device, stateful)
     seen = progress.log[-1] if progress.log else {"agent_windows_seen": 0, "train_seconds": 0.0}
     seen_agents, seen_seconds = int(seen["agent_windows_seen"]), float(seen["train_seconds"])
-    board = SummaryWriter(scratch / TENSORBOARD_DIR, purge_step=progress.start_epoch + 1)
+    curves = Curves(scratch, progress.start_epoch)
 
     n_windows = min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows
     steps_per_epoch = [len(epoch_plan(train, cfg, epoch, n_windows)[0]) for epoch in range(cfg.epochs)]
@@ -215,15 +214,11 @@ def build(
             f"val_min_fde@{cfg.k}_m": fde,
         }
         progress.record(row, ade, model)
-        for name, value in row.items():
-            if name != "epoch":
-                board.add_scalar(name, value, epoch + 1)
-        board.flush()
+        curves.add(row)
         if on_epoch:
             on_epoch(row)
         save_progress(scratch / "last.pt", progress, epoch, stateful)
-    board.close()
-    shutil.copytree(scratch / TENSORBOARD_DIR, out_dir / TENSORBOARD_DIR)
+    curves.finish(out_dir)
 
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,

@@ -1,7 +1,8 @@
 """Train the U-Net goal estimator of one leave-one-out benchmark.
 
 Reads: windows (train and val parts of the benchmark) and maps. Writes: `goal/<fp>/model.pt` (best
-weights by validation goal-FDE@K, with the resolved config) and `log.csv` (every loss term per epoch).
+weights by validation goal-FDE@K, with the resolved config), `log.csv` (every loss term per epoch) and
+the same curves as TensorBoard events in `tensorboard/`.
 Run: `fftool train-goal --benchmark zara1`. Checkpoints go to the store's scratch folder every epoch, so
 an interrupted run resumes where it stopped.
 """
@@ -23,6 +24,7 @@ from fftool.heatmaps import world_to_cells
 from fftool.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
 from fftool.store import Artifact
 from fftool.training import (
+    Curves,
     generator,
     lr_factor,
     make_optimizer,
@@ -80,6 +82,7 @@ def build(
     optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
     stateful = {"model": model, "optimizer": optimizer}
     progress = resume(scratch / "last.pt", device, stateful)
+    curves = Curves(scratch, progress.start_epoch)
 
     started = time.perf_counter()
     for epoch in range(progress.start_epoch, cfg.epochs):
@@ -131,9 +134,11 @@ def build(
             "val_goal_fde@1_m": fde_1,
         }
         progress.record(row, fde_k, model)
+        curves.add(row)
         if on_epoch:
             on_epoch(row)
         save_progress(scratch / "last.pt", progress, epoch, stateful)
+    curves.finish(out_dir)
 
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,

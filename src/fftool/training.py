@@ -6,12 +6,16 @@ import csv
 import math
 import os
 import random
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from torch.utils.tensorboard import SummaryWriter
+
+from fftool.schema import TENSORBOARD_DIR
 
 
 def seed_all(seed: int) -> None:
@@ -122,3 +126,22 @@ def save_progress(path: Path, progress: Progress, epoch: int, stateful: dict[str
     best = {"metric": progress.best_metric, "epoch": progress.best_epoch, "state": progress.best_state}
     states = {name: obj.state_dict() for name, obj in stateful.items()}
     save_checkpoint(path, {"states": states, "epoch": epoch, "log": progress.log, "best": best})
+
+
+class Curves:
+    """Per-epoch log rows as TensorBoard scalars: written live to the scratch folder while training (so
+    `tensorboard --logdir <root>` follows a run), copied into the artifact when it is done."""
+
+    def __init__(self, scratch: Path, start_epoch: int) -> None:
+        self.folder = scratch / TENSORBOARD_DIR
+        self.writer = SummaryWriter(self.folder, purge_step=start_epoch + 1)  # drops a killed run's extra rows
+
+    def add(self, row: dict[str, Any]) -> None:
+        for name, value in row.items():
+            if name != "epoch":
+                self.writer.add_scalar(name, value, int(row["epoch"]))
+        self.writer.flush()
+
+    def finish(self, out_dir: Path) -> None:
+        self.writer.close()
+        shutil.copytree(self.folder, out_dir / TENSORBOARD_DIR)
