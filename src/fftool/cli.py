@@ -479,7 +479,7 @@ def ablate(
 
 @app.command(
     epilog="Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # < 15 min on a 2-core CPU\n\n"
-    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # longer CPU training, about 2-3 h\n\n"
+    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # longer CPU training, about 1.5-2 h\n\n"
     "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU"
 )
 @_boundary
