@@ -13,6 +13,7 @@ redoes that epoch and ends with the same weights as an uninterrupted run.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -24,6 +25,7 @@ import torch
 from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.cvaenet import autocast, build_model, sample
+from fftool.metrics import displacement
 from fftool.models.forceformer import ForceFormer, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
@@ -89,7 +91,7 @@ def val_metrics(
     ade, fde, count = 0.0, 0.0, 0
     for members in scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0)):
         prepared = prepare(scenes.batch(members).to(device), cfg.variant, obs_len)
-        error = torch.linalg.vector_norm(predict(prepared) - prepared.future_pos[:, None], dim=-1)  # (B, K, A, Tf)
+        error = displacement(predict(prepared), prepared.future_pos)  # (B, K, A, Tf)
         mask = prepared.agent_mask
         ade += float((error.mean(-1).min(1).values * mask).sum())
         fde += float((error[..., -1].min(1).values * mask).sum())
@@ -164,7 +166,7 @@ def build(
 
     n_windows = min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows
     steps_per_epoch = [len(epoch_plan(train, cfg, epoch, n_windows)[0]) for epoch in range(cfg.epochs)]
-    total_steps = sum(steps_per_epoch)  # the schedule's budget, known before the first step
+    first_steps = [0, *itertools.accumulate(steps_per_epoch)]  # [-1]: the schedule's budget, known up front
     started = time.perf_counter()
     for epoch in range(progress.start_epoch, cfg.epochs):
         model.train()
@@ -172,7 +174,7 @@ def build(
         torch.manual_seed(cfg.seed * 100_003 + epoch)  # dropout and sampling noise of this epoch
         gen = generator(cfg.seed * 100_003 + epoch, device)
         plan, rng = epoch_plan(train, cfg, epoch, n_windows)
-        steps, first_step = len(plan), sum(steps_per_epoch[:epoch])
+        steps = len(plan)
         sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0}
         agents = 0
         for step, members in enumerate(plan):
@@ -185,8 +187,8 @@ def build(
                 torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
             factor = lr_factor(
                 cfg.schedule,
-                first_step + step,
-                total_steps,
+                first_steps[epoch] + step,
+                first_steps[-1],
                 cfg.warmup_fraction,
                 epoch,
                 cfg.decay_every,
