@@ -179,8 +179,9 @@ def build(
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
     scenes = load_scene_set(windows, forces, benchmark, cfg.part)
-    if scenes.windows == 0:
-        raise FftoolError(f"{benchmark}/{cfg.part} has no valid agent-windows to evaluate")
+    # Count agent-windows, not windows: an empty part still has one (empty) window in scenes.window_start.
+    if len(scenes.data) == 0:
+        raise FftoolError(_no_agent_windows(benchmark, cfg.part, obs_len + pred_len))
     sampled = load_sampled_goals(goals, scenes, benchmark, cfg.part) if goals is not None else None
     predictor = Predictor(cfg, cvae, sampled, obs_len, pred_len, device)
     rng = np.random.default_rng(cfg.seed)
@@ -227,8 +228,19 @@ def build(
     }
 
 
+def _no_agent_windows(benchmark: str, part: str, window_len: int | None = None) -> str:
+    """Why an empty part is refused: its means would be NaN, not numbers."""
+    steps = f"{window_len} consecutive steps" if window_len else "a whole window"
+    return (
+        f"{benchmark}/{part} has 0 valid agent-windows to evaluate: expected at least one pedestrian present "
+        f"for {steps} in that part (see the windows artifact's summary)"
+    )
+
+
 def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str, variant: str, protocol: str) -> dict:
     """The manifest's metrics: means over agent-windows and every NC variant, with their definitions."""
+    if len(columns["min_ade"]) == 0:  # a mean over nothing is NaN; never report it as a metric
+        raise FftoolError(_no_agent_windows(benchmark, cfg.part))
     collisions, joint = columns["collisions"], columns["joint_collisions"]
     return {
         "benchmark": benchmark,

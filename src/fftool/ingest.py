@@ -97,8 +97,9 @@ def build(
             "frames": int(steps.size),
             "first_frame_id": int(steps[0]),
             "last_frame_id": int(steps[-1]),
-            # The smallest gap between consecutive frames actually seen: the data's own stride.
-            "observed_stride": int(np.diff(steps).min()) if steps.size > 1 else None,
+            # The smallest gap between consecutive frames actually seen: the data's own stride. The ids
+            # are sorted and distinct, so uint64 differences are exact even across the whole int64 range.
+            "observed_stride": int(np.diff(steps.view(np.uint64)).min()) if steps.size > 1 else None,
         }
     arrays = [
         pa.array(np.concatenate(columns[name])).dictionary_encode().cast(fld.type)

@@ -3,12 +3,19 @@
 Validation is fast in the common case and precise in the rare one: pandas' C parser reads the file
 and vectorised checks look for trouble; only when something is wrong does a line-by-line pass run to
 name the exact line and problem. Both paths return identical tables for a clean file.
+
+Ids (frame_id, ped_id) are integers within int64, written plainly or with a zero fraction (`780.0`);
+anything else (`3.5`, `1e20`, `nan`) is an error, never a silent wrap. float64 holds every integer
+below 2**53 exactly, so the fast path reads ids as floats and leaves larger ones to the slow path,
+which reads them from their text. A UTF-8 byte-order mark, CRLF or CR line ends and any mix of tabs
+and spaces parse exactly like the clean file.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Literal
 
@@ -18,6 +25,9 @@ import pandas as pd
 from fftool.errors import RawDataError
 
 COLUMNS = ("frame_id", "ped_id", "x", "y")
+INT64 = np.iinfo(np.int64)
+# Below this magnitude float64 holds every integer exactly; ids at or beyond it are read from their text.
+EXACT_FLOAT_INT = 2.0**53
 
 
 @dataclass
@@ -50,7 +60,8 @@ def read_raw(path: Path, frame_stride: int, duplicates: Literal["warn", "error"]
 def _read_fast(path: Path, frame_stride: int) -> RawTable | None:
     """pandas C parser + vectorised checks; None whenever anything looks wrong."""
     try:
-        frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=np.float64, engine="c")
+        # pandas skips a leading UTF-8 BOM and accepts \n, \r\n and \r line ends.
+        frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=np.float64, engine="c", encoding="utf-8")
     except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
         return None
     if frame.shape[1] != len(COLUMNS) or len(frame) == 0:
@@ -59,7 +70,7 @@ def _read_fast(path: Path, frame_stride: int) -> RawTable | None:
     if not np.isfinite(values).all():
         return None
     ids = values[:, :2]
-    if not (np.round(ids) == ids).all():
+    if not ((np.abs(ids) < EXACT_FLOAT_INT) & (np.round(ids) == ids)).all():
         return None
     frame_id = ids[:, 0].astype(np.int64)
     ped_id = ids[:, 1].astype(np.int64)
@@ -74,7 +85,7 @@ def _read_fast(path: Path, frame_stride: int) -> RawTable | None:
 def _read_slow(path: Path, frame_stride: int, duplicates: Literal["warn", "error"]) -> RawTable:
     """Line-by-line parse that stops at the first problem with its line number."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()  # -sig: a leading BOM is not data
     except UnicodeDecodeError as exc:
         raise RawDataError(path, f"not a text file ({exc.reason} at byte {exc.start})") from exc
     rows: list[tuple[int, int, float, float]] = []
@@ -96,11 +107,9 @@ def _read_slow(path: Path, frame_stride: int, duplicates: Literal["warn", "error
             if not math.isfinite(value):
                 raise RawDataError(path, f"{name} must be finite, found {text!r}", line_no)
             numbers.append(value)
-        frame_f, ped_f, x, y = numbers
-        for name, value in (("frame_id", frame_f), ("ped_id", ped_f)):
-            if value != round(value):
-                raise RawDataError(path, f"{name} must be an integer, found {value!r}", line_no)
-        frame_id, ped_id = int(frame_f), int(ped_f)
+        frame_id = _exact_id(path, line_no, "frame_id", fields[0], numbers[0])
+        ped_id = _exact_id(path, line_no, "ped_id", fields[1], numbers[1])
+        x, y = numbers[2], numbers[3]
         if phase is None:
             phase = frame_id % frame_stride
         elif frame_id % frame_stride != phase:
@@ -139,3 +148,22 @@ def _read_slow(path: Path, frame_stride: int, duplicates: Literal["warn", "error
         ys.astype(np.float64),
         warnings,
     )
+
+
+def _exact_id(path: Path, line_no: int, name: str, text: str, value: float) -> int:
+    """The id a field holds, exactly: its float where float64 is exact, else its text (no silent rounding)."""
+    if value != round(value):
+        raise RawDataError(path, f"{name} must be an integer, found {value!r}", line_no)
+    if abs(value) < EXACT_FLOAT_INT:
+        return int(value)
+    try:
+        exact = Decimal(text)
+    except InvalidOperation:
+        raise RawDataError(path, f"{name} is not a number: {text!r}", line_no) from None
+    if exact != exact.to_integral_value():
+        raise RawDataError(path, f"{name} must be an integer, found {text!r}", line_no)
+    if not INT64.min <= exact <= INT64.max:
+        raise RawDataError(
+            path, f"{name} must be an integer within int64 ({INT64.min} to {INT64.max}), found {text!r}", line_no
+        )
+    return int(exact)

@@ -85,7 +85,7 @@ def slice_sequence(
         if rows.size
         else np.zeros(0, np.int64),
         n_agents=n_agents.astype(np.int32),
-        n_present=_present_counts(step - min_step, ped_id, window_first - min_step, window_len, n_steps),
+        n_present=_present_counts(step, ped_id, window_first, window_len),
         agent_window=agent_window.astype(np.int64),
         agent_ped=p[row0],
         agent_xy=xy[rows],
@@ -95,15 +95,20 @@ def slice_sequence(
     )
 
 
-def _present_counts(
-    local_step: np.ndarray, ped_id: np.ndarray, window_first: np.ndarray, window_len: int, n_steps: int
-) -> np.ndarray:
-    """Pedestrians present at any step of each window, via a peds × steps presence prefix sum."""
+def _present_counts(step: np.ndarray, ped_id: np.ndarray, window_first: np.ndarray, window_len: int) -> np.ndarray:
+    """Pedestrians present at any step of each window, via a peds × distinct-steps presence prefix sum.
+
+    Columns are the distinct steps seen, not every step of the span: a valid but far-off frame id
+    (any int64 passes ingest) must not size the array by the gap.
+    """
+    steps, step_index = np.unique(step, return_inverse=True)
     _, ped_index = np.unique(ped_id, return_inverse=True)
-    presence = np.zeros((ped_index.max() + 1, n_steps + 1), dtype=np.int32)  # (P, S+1)
-    presence[ped_index, local_step + 1] = 1
+    presence = np.zeros((ped_index.max() + 1, steps.size + 1), dtype=np.int32)  # (P, S+1)
+    presence[ped_index, step_index + 1] = 1
     cumulative = presence.cumsum(axis=1)
-    inside = cumulative[:, window_first + window_len] - cumulative[:, window_first]  # (P, W)
+    # Window w covers the distinct steps with index lo[w] <= i < hi[w].
+    lo, hi = np.searchsorted(steps, window_first), np.searchsorted(steps, window_first + window_len)
+    inside = cumulative[:, hi] - cumulative[:, lo]  # (P, W)
     return (inside > 0).sum(axis=0).astype(np.int32)
 
 
