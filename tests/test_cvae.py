@@ -10,12 +10,14 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from fftool import cvae, cvaenet, pipeline
+from fftool import cvae, cvaenet, pipeline, training
 from fftool.batches import load_scene_set
 from fftool.cli import app
 from fftool.config import CVAEConfig, ForcesConfig, load_config
+from fftool.errors import IntegrityError
 from fftool.models.forceformer import Gaussian
 from fftool.store import ArtifactStore
+from fftool.training import save_checkpoint
 from fftool.trajfeatures import FEATURE_DIMS, prepare
 
 TINY = CVAEConfig(
@@ -207,3 +209,54 @@ def test_a_cpu_recipe_builds_trains_and_logs(inputs: dict, tmp_path: Path) -> No
     events.Reload()
     assert [e.value for e in events.Scalars("val_min_ade@3_m")] == pytest.approx([r["val_min_ade@3_m"] for r in log])
     assert {"train_recon", "train_kl", "train_best_of_k", "lr"} <= set(events.Tags()["scalars"])
+
+
+@pytest.mark.parametrize("damage", ["truncated", "another model"])
+def test_a_damaged_resume_checkpoint_is_set_aside_and_the_build_starts_over(
+    inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damage: str
+) -> None:
+    warned: list[str] = []
+    monkeypatch.setattr(training, "warn", warned.append)
+    _train(inputs, tmp_path, "reference", TINY)
+    last = tmp_path / "scratch" / "last.pt"
+    if damage == "truncated":
+        last.write_bytes(last.read_bytes()[:1000])
+    else:
+        state = torch.load(last, weights_only=True)
+        state["states"]["model"]["out.weight"] = torch.zeros(2, 8)  # the head of a narrower model
+        torch.save(state, last)
+    rerun = _train(inputs, tmp_path, "rerun", TINY)
+    assert rerun["resumed_from_epoch"] == 0 and [row["epoch"] for row in rerun["log"]] == [1, 2]
+    (aside,) = (tmp_path / "scratch").glob("last.pt.damaged-*")
+    assert len(warned) == 1 and aside.name in warned[0]
+    assert torch.load(last, weights_only=True)["epoch"] == 1  # a new checkpoint of the finished run
+    ref = torch.load(tmp_path / "reference" / "model.pt", weights_only=True)["state_dict"]
+    new = torch.load(tmp_path / "rerun" / "model.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(ref[key], new[key]) for key in ref)  # from the same fresh weights as the first run
+
+
+@pytest.mark.parametrize("tamper", ["garbage", "pickled function", "goal model"])
+def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: str) -> None:
+    torch.manual_seed(0)
+    path = tmp_path / "model.pt"
+    saved = {
+        "state_dict": cvaenet.build_model(TINY).state_dict(),
+        "config": TINY.model_dump(mode="json"),
+        "forces_config": ForcesConfig().model_dump(mode="json"),
+        "dt_s": 0.4,
+    }
+    save_checkpoint(path, saved)
+    artifact = type("A", (), {"file": lambda self, name: tmp_path / name})()
+    assert cvaenet.load_model(artifact, torch.device("cpu")).config == TINY
+    if tamper == "garbage":
+        path.write_bytes(b"garbage!" + path.read_bytes()[8:])
+    elif tamper == "pickled function":
+        torch.save({**saved, "hook": print}, path)
+    else:
+        torch.save({"state_dict": {}, "in_channels": 14, "config": {"crop_cells": 16}}, path)
+    with pytest.raises(IntegrityError) as caught:
+        cvaenet.load_model(artifact, torch.device("cpu"))
+    message = str(caught.value)
+    assert message.startswith(f"{path}: not a valid fftool checkpoint, ")
+    assert message.endswith("; rebuild it with `fftool train-cvae --force`")
+    assert "weights_only" not in message and "\n" not in message

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -10,12 +11,14 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from typer.testing import CliRunner
 
-from fftool import goal, goalnet, pipeline
+from fftool import goal, goalnet, pipeline, training
 from fftool.batches import SceneMaps
 from fftool.cli import app
 from fftool.config import GoalConfig, GoalsConfig, load_config
+from fftool.errors import IntegrityError
 from fftool.heatmaps import softargmax
 from fftool.store import ArtifactStore
+from fftool.training import save_checkpoint
 
 from .test_maps import make_scene
 
@@ -135,3 +138,43 @@ def test_aligned_crops_turn_any_heading_to_plus_col() -> None:
     torch.testing.assert_close(x[0], x[1], atol=1e-5, rtol=0)  # the two headings give one picture
     cv_cell = softargmax(torch.log(x[:, 8].clamp_min(1e-30)))  # 12 · 0.1 m = 2.4 cells ahead of 7.5
     torch.testing.assert_close(cv_cell, torch.tensor([[9.9, 7.5], [9.9, 7.5]]), atol=1e-3, rtol=0)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated"])
+def test_a_damaged_resume_checkpoint_is_set_aside_and_the_build_starts_over(
+    inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damage: str
+) -> None:
+    warned: list[str] = []
+    monkeypatch.setattr(training, "warn", warned.append)
+    cfg = TINY.model_copy(update={"epochs": 2})
+    reference = _train(inputs, tmp_path, "reference", cfg)
+    last = tmp_path / "scratch" / "last.pt"
+    last.write_bytes(os.urandom(4096) if damage == "garbage" else last.read_bytes()[:-100])
+    damaged = last.read_bytes()
+    rerun = _train(inputs, tmp_path, "rerun", cfg)
+    assert rerun["resumed_from_epoch"] == 0 and [row["epoch"] for row in rerun["log"]] == [1, 2]
+    assert [row["train_loss"] for row in rerun["log"]] == pytest.approx([r["train_loss"] for r in reference["log"]])
+    (aside,) = (tmp_path / "scratch").glob("last.pt.damaged-*")
+    assert aside.read_bytes() == damaged and len(warned) == 1 and "does not load" in warned[0]
+    assert torch.load(last, weights_only=True)["epoch"] == 1  # a new checkpoint of the finished run
+
+
+@pytest.mark.parametrize("tamper", ["garbage", "pickled function", "cvae model"])
+def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: str) -> None:
+    path = tmp_path / "model.pt"
+    saved = {"state_dict": goalnet.build_model(TINY, 14).state_dict(), "in_channels": 14, "config": TINY.model_dump()}
+    save_checkpoint(path, saved)
+    artifact = type("A", (), {"file": lambda self, name: tmp_path / name})()
+    assert goalnet.load_model(artifact, torch.device("cpu"))[1] == TINY
+    if tamper == "garbage":
+        path.write_bytes(b"garbage!" + path.read_bytes()[8:])
+    elif tamper == "pickled function":
+        torch.save({**saved, "hook": print}, path)
+    else:
+        torch.save({"state_dict": saved["state_dict"], "config": {"d_model": 16, "n_heads": 2}}, path)
+    with pytest.raises(IntegrityError) as caught:
+        goalnet.load_model(artifact, torch.device("cpu"))
+    message = str(caught.value)
+    assert message.startswith(f"{path}: not a valid fftool checkpoint, ")
+    assert message.endswith("; rebuild it with `fftool train-goal --force`")
+    assert "weights_only" not in message and "\n" not in message

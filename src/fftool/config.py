@@ -1,17 +1,20 @@
 """Every knob on one page: one frozen pydantic model per stage, and a strict loader.
 
 A pipeline file (`pipelines/*.toml`) overrides the defaults and `--set section.key=value` overrides the
-file. Unknown keys and type mismatches raise `ConfigError` naming the key. Each stage's fingerprint
+file. Unknown keys, type mismatches, infinities, NaNs and values out of range (alone or with respect to
+another key of their section) raise `ConfigError` naming the key, before any stage runs. Each stage's fingerprint
 hashes only its own section (resolved, defaults included), so changing a default rebuilds that stage.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import PydanticCustomError
 
 from fftool.errors import ConfigError
 from fftool.scenes import DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN
@@ -26,7 +29,15 @@ DEFAULT_SCENES_DIR = "../shared/data/eth_ucy/scenes"
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    # No inf or nan anywhere: they would pass most range checks, train to NaN and break the manifest's JSON.
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+def _expected(key: str, expected: str, got: Any) -> PydanticCustomError:
+    """A cross-field check's failure, blamed on `key` of the section (`_describe` adds the section)."""
+    return PydanticCustomError(
+        "cross_field", "{key}: expected {expected}", {"key": key, "expected": expected, "got": got}
+    )
 
 
 class DataConfig(_Section):
@@ -52,7 +63,7 @@ class IngestConfig(_Section):
 class WindowsConfig(_Section):
     """Slicing tracks into 8 + 12 step windows for each leave-one-out benchmark (stage `windows`)."""
 
-    obs_len: int = Field(OBS_LEN, gt=0)
+    obs_len: int = Field(OBS_LEN, ge=2)  # the last observed velocity needs two steps
     pred_len: int = Field(PRED_LEN, gt=0)
     # Steps between consecutive window start frames; 1 is the benchmark protocol.
     window_stride: int = Field(1, gt=0)
@@ -110,7 +121,7 @@ class GoalConfig(_Section):
     crop_cells: int = Field(48, gt=0)  # 48 × 0.5 m = ±12 m: covers the largest 12-step displacement
     heatmap_sigma_cells: float = Field(1.0, gt=0)  # Gaussian of each observed position and of the target
     # U-Net: encoder widths (one pooling between consecutive entries), decoder mirrors them.
-    widths: tuple[int, ...] = (32, 32, 64, 64, 64)
+    widths: tuple[Annotated[int, Field(gt=0)], ...] = Field((32, 32, 64, 64, 64), min_length=2)
     # Loss = BCE + MSE(softargmax goal, true goal) in cells, with `loss_lambda` on one of them.
     loss_lambda: float = Field(1e6, gt=0)  # the paper's λ
     lambda_scales: Literal["bce", "mse"] = "bce"  # Goal-SAR puts 1e6 on the BCE (docs/goal.md)
@@ -136,6 +147,17 @@ class GoalConfig(_Section):
     val_max: int = Field(1000, ge=0)  # validation agent-windows per epoch (0 = all)
     seed: int = 0
 
+    @model_validator(mode="after")
+    def _fits_the_unet(self) -> GoalConfig:
+        """The checks goalnet.build_model would otherwise fail on after the inputs are loaded."""
+        multiple = 2 ** (len(self.widths) - 1)
+        if self.crop_cells % multiple:
+            raise _expected("crop_cells", f"a multiple of {multiple} (2 ** (len(widths) - 1))", self.crop_cells)
+        if 2 * math.pi * self.heatmap_sigma_cells**2 >= self.crop_cells**2:  # the target would fill the crop
+            limit = self.crop_cells / math.sqrt(2 * math.pi)
+            raise _expected("heatmap_sigma_cells", f"< crop_cells / sqrt(2π) = {limit:.4g}", self.heatmap_sigma_cells)
+        return self
+
 
 class GoalsConfig(_Section):
     """Goal sampling from the trained U-Net (stage `goals`, command `fftool sample-goals`)."""
@@ -146,7 +168,7 @@ class GoalsConfig(_Section):
     threshold: float = Field(0.05, ge=0, lt=1)  # cells below threshold · max P are dropped (Goal-SAR's ρ)
     samples: int = Field(2000, gt=0)  # draws per agent clustered by k-means (Goal-SAR: 10,000)
     kmeans_iterations: int = Field(20, gt=0)
-    parts: tuple[Literal["train", "val", "test"], ...] = ("val", "test")
+    parts: tuple[Literal["train", "val", "test"], ...] = Field(("val", "test"), min_length=1)
     # The constant-velocity reference: the last observed velocity extrapolated to the last step, and
     # K - 1 more goals with the heading and speed perturbed by these standard deviations.
     cv_angle_std_deg: float = Field(15.0, ge=0)
@@ -199,6 +221,12 @@ class CVAEConfig(_Section):
     compile: bool = False
     seed: int = 0
 
+    @model_validator(mode="after")
+    def _heads_divide_the_width(self) -> CVAEConfig:
+        if self.d_model % self.n_heads:
+            raise _expected("n_heads", f"a divisor of d_model = {self.d_model}", self.n_heads)
+        return self
+
 
 class EvaluateConfig(_Section):
     """Test-time sampling and metrics (ForceFormer §IV-C; definitions in docs/metrics.md)."""
@@ -224,7 +252,7 @@ Benchmark = Literal["eth", "hotel", "univ", "zara1", "zara2"]
 class ReportConfig(_Section):
     """What `ablate` and `reproduce` cover and how the tables count (not part of any fingerprint)."""
 
-    benchmarks: tuple[Benchmark, ...] = ("eth", "hotel", "univ", "zara1", "zara2")
+    benchmarks: tuple[Benchmark, ...] = Field(("eth", "hotel", "univ", "zara1", "zara2"), min_length=1)
     variants: tuple[Literal["goal", "dr", "re"], ...] = ("goal", "dr", "re")  # baseline always included
     collision_pairs: Literal["ordered", "unordered"] = "ordered"  # the paper's sum is over m != n
     collision_sample: Literal["best_ade", "joint"] = "best_ade"  # per-agent best-ADE (paper) or one per window
@@ -277,6 +305,9 @@ def _describe(error: ValidationError, origin: str) -> str:
         key = ".".join(str(part) for part in issue["loc"])
         if issue["type"] == "extra_forbidden":
             lines.append(f"unknown key {key!r}")
+        elif issue["type"] == "cross_field":
+            context = issue["ctx"]
+            lines.append(f"{key}.{context['key']}: expected {context['expected']} (got {context['got']!r})")
         else:
             lines.append(f"{key}: {issue['msg']} (got {issue.get('input')!r})")
     return f"invalid configuration in {origin}: " + "; ".join(lines)
@@ -289,9 +320,11 @@ def load_config(path: Path | None = None, overrides: list[str] | None = None) ->
     if path is not None:
         origin = str(path)
         try:
-            raw = tomllib.loads(Path(path).read_text())
+            raw = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         except FileNotFoundError as exc:
             raise ConfigError(f"{path}: no such pipeline file") from exc
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{path}: not a UTF-8 TOML file (undecodable byte at offset {exc.start})") from exc
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
     if overrides:

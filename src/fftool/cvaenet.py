@@ -13,6 +13,7 @@ from fftool.config import CVAEConfig, ForcesConfig
 from fftool.models.forceformer import ForceFormer, Gaussian
 from fftool.schema import CVAE_MODEL_FILE
 from fftool.store import Artifact
+from fftool.training import model_file
 from fftool.trajfeatures import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features
 
 
@@ -73,9 +74,9 @@ class Trained(NamedTuple):
 
 
 def load_model(cvae: Artifact, device: torch.device) -> Trained:
-    """Rebuild a trained model from its artifact alone."""
-    saved = torch.load(cvae.file(CVAE_MODEL_FILE), map_location=device, weights_only=True)
-    cfg = CVAEConfig.model_validate(saved["config"])
-    model = build_model(cfg).to(device)
-    model.load_state_dict(saved["state_dict"])
-    return Trained(model.eval(), cfg, ForcesConfig.model_validate(saved["forces_config"]), float(saved["dt_s"]))
+    """Rebuild a trained model from its artifact alone (a damaged model file is an IntegrityError)."""
+    with model_file(cvae.file(CVAE_MODEL_FILE), device, "fftool train-cvae --force") as saved:
+        cfg = CVAEConfig.model_validate(saved["config"])
+        model = build_model(cfg).to(device)
+        model.load_state_dict(saved["state_dict"])
+        return Trained(model.eval(), cfg, ForcesConfig.model_validate(saved["forces_config"]), float(saved["dt_s"]))

@@ -27,7 +27,7 @@ from fftool.heatmaps import (
 from fftool.models import GoalUNet
 from fftool.schema import GOAL_MODEL_FILE
 from fftool.store import Artifact
-from fftool.training import generator
+from fftool.training import generator, model_file
 
 
 def input_channels(cfg: GoalConfig, obs_len: int, map_channels: int) -> int:
@@ -131,9 +131,9 @@ def evaluate(
 
 
 def load_model(goal: Artifact, device: torch.device) -> tuple[GoalUNet, GoalConfig]:
-    """Rebuild the trained U-Net from its artifact alone."""
-    saved = torch.load(goal.file(GOAL_MODEL_FILE), map_location=device, weights_only=True)
-    cfg = GoalConfig.model_validate(saved["config"])
-    model = build_model(cfg, saved["in_channels"]).to(device)
-    model.load_state_dict(saved["state_dict"])
-    return model.eval(), cfg
+    """Rebuild the trained U-Net from its artifact alone (a damaged model file is an IntegrityError)."""
+    with model_file(goal.file(GOAL_MODEL_FILE), device, "fftool train-goal --force") as saved:
+        cfg = GoalConfig.model_validate(saved["config"])
+        model = build_model(cfg, saved["in_channels"]).to(device)
+        model.load_state_dict(saved["state_dict"])
+        return model.eval(), cfg

@@ -1,12 +1,16 @@
-"""Plain helpers shared by the training stages: seeding, devices, resumable checkpoints, CSV logs."""
+"""Plain helpers shared by the training stages: seeding, devices, resumable checkpoints, model files, CSV logs."""
 
 from __future__ import annotations
 
+import copy
 import csv
 import math
 import os
 import random
 import shutil
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,7 +19,13 @@ import numpy as np
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
+from fftool.errors import IntegrityError
 from fftool.schema import TENSORBOARD_DIR
+from fftool.ui import warn
+
+# What loading a readable checkpoint into objects it does not fit raises (missing or extra keys, other
+# shapes, other types); ValueError includes pydantic's ValidationError of a saved config.
+_UNFIT = (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError)
 
 
 def seed_all(seed: int) -> None:
@@ -70,17 +80,51 @@ def lr_factor(
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    """Write atomically: a killed process never leaves a truncated checkpoint."""
+    """Write atomically: a killed process never leaves a truncated checkpoint. The partial file is named
+    after the process, so two processes never write into or rename each other's."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".partial")
-    torch.save(state, partial)
-    os.replace(partial, path)
+    partial = path.with_name(f"{path.name}.partial-{os.getpid()}")
+    try:
+        torch.save(state, partial)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)  # left only when saving failed
 
 
-def load_checkpoint(path: Path, device: torch.device) -> dict[str, Any] | None:
-    if not path.is_file():
+def _load(path: Path, device: torch.device) -> dict[str, Any] | None:
+    """The checkpoint's contents, or None when its bytes do not load (truncated, overwritten, not torch's)."""
+    try:
+        return torch.load(path, map_location=device, weights_only=True)
+    except OSError:
+        raise  # the disk's or the permissions' fault, not the file's
+    except Exception:  # what torch raises depends on where the bytes are damaged
         return None
-    return torch.load(path, map_location=device, weights_only=True)
+
+
+def _summary(exc: Exception) -> str:
+    """An error on one line of at most 200 characters, for a message that names its cause."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= 200 else text[:199] + "…"
+
+
+@contextmanager
+def model_file(path: Path, device: torch.device, command: str) -> Iterator[dict[str, Any]]:
+    """An artifact's model file, for the `with` body to rebuild its model from.
+
+    A file that does not load as plain tensors and values, or whose contents do not fit what the body
+    builds, is an IntegrityError naming the file and `command`, the one that rebuilds it. torch's own
+    message is left out on purpose: it suggests `weights_only=False`, which would run a tampered pickle.
+    """
+    saved = _load(path, device)
+    if saved is None:
+        problem = "damaged or modified: it does not load as tensors and plain values"
+    else:
+        try:
+            yield saved
+            return
+        except _UNFIT as exc:
+            problem = f"its contents do not fit the model ({_summary(exc)})"
+    raise IntegrityError(f"{path}: not a valid fftool checkpoint, {problem}; rebuild it with `{command}`")
 
 
 def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -111,14 +155,50 @@ class Progress:
 
 
 def resume(path: Path, device: torch.device, stateful: dict[str, Any]) -> Progress:
-    """Restore model/optimizer/scheduler states from the last epoch checkpoint, if there is one."""
-    state = load_checkpoint(path, device)
-    if state is None:
+    """Restore model/optimizer states and the progress from the last epoch checkpoint, if there is one.
+
+    A checkpoint that does not load or does not fit `stateful` (whose "model" is the module the best
+    weights belong to) must not block every later run: it is renamed aside with a warning, the objects
+    get their states back and training starts over.
+    """
+    if not path.is_file():
         return Progress()
+    state = _load(path, device)
+    if state is None:
+        return _set_aside(path, "it does not load (truncated or overwritten)")
+    fresh = {name: copy.deepcopy(obj.state_dict()) for name, obj in stateful.items()}
+    try:
+        return _restore(state, stateful)
+    except _UNFIT as exc:
+        for name, obj in stateful.items():
+            obj.load_state_dict(fresh[name])
+        return _set_aside(path, f"it does not fit the model or optimizer ({_summary(exc)})")
+
+
+def _restore(state: dict[str, Any], stateful: dict[str, Any]) -> Progress:
+    """Load `state` into the objects, checking the shapes that loading alone does not: optimizer moments
+    (else the first step fails) and the best weights (else the final model file does not load)."""
     for name, obj in stateful.items():
         obj.load_state_dict(state["states"][name])
+        if isinstance(obj, torch.optim.Optimizer):
+            for param in (p for group in obj.param_groups for p in group["params"]):
+                for key, value in obj.state.get(param, {}).items():
+                    if torch.is_tensor(value) and value.dim() and value.shape != param.shape:
+                        raise ValueError(f"optimizer {key} of shape {list(value.shape)} for {list(param.shape)}")
     best = state["best"]
+    if best["state"] is not None:
+        model = stateful["model"].state_dict()
+        if best["state"].keys() != model.keys() or any(best["state"][k].shape != v.shape for k, v in model.items()):
+            raise ValueError("the best weights do not match the model's parameters")
     return Progress(state["epoch"] + 1, state["log"], best["metric"], best["epoch"], best["state"])
+
+
+def _set_aside(path: Path, problem: str) -> Progress:
+    """Rename a damaged checkpoint out of the way (kept for inspection) and start from the first epoch."""
+    aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}")
+    os.replace(path, aside)
+    warn(f"{path}: damaged resume checkpoint, {problem}; kept as {aside.name}, training starts from epoch 1")
+    return Progress()
 
 
 def save_progress(path: Path, progress: Progress, epoch: int, stateful: dict[str, Any]) -> None:

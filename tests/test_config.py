@@ -1,0 +1,103 @@
+"""The config loader refuses, up front and naming the key, every value a stage would trip over later."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from fftool.cli import app
+from fftool.config import PipelineConfig, load_config
+from fftool.errors import ConfigError
+
+FLOAT_KEYS = [
+    f"{section}.{name}"
+    for section, info in PipelineConfig.model_fields.items()
+    for name, field in info.annotation.model_fields.items()
+    if field.annotation is float
+]
+
+
+def test_every_section_has_float_keys_to_check() -> None:
+    sections = {key.split(".")[0] for key in FLOAT_KEYS}
+    assert {"ingest", "forces", "maps", "goal", "goals", "cvae", "evaluate"} <= sections
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan"])
+@pytest.mark.parametrize("key", FLOAT_KEYS)
+def test_no_float_may_be_infinite_or_nan(key: str, value: str) -> None:
+    with pytest.raises(ConfigError, match=rf"{key}: Input should be a finite number"):
+        load_config(None, [f"{key}={value}"])
+
+
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("cvae.epochs=0", "cvae.epochs: Input should be greater than 0"),
+        ("goal.epochs=0", "goal.epochs: Input should be greater than 0"),
+        ("cvae.batch_windows=0", "cvae.batch_windows: Input should be greater than 0"),
+        ("goal.batch_size=0", "goal.batch_size: Input should be greater than 0"),
+        ("evaluate.batch_windows=0", "evaluate.batch_windows: Input should be greater than 0"),
+        ("cvae.k=0", "cvae.k: Input should be greater than 0"),
+        ("cvae.train_k=0", "cvae.train_k: Input should be greater than 0"),
+        ("goals.k=0", "goals.k: Input should be greater than 0"),
+        ("evaluate.k=0", "evaluate.k: Input should be greater than 0"),
+        ("cvae.warmup_fraction=1.0", "cvae.warmup_fraction: Input should be less than 1"),
+        ("goal.warmup_fraction=-0.1", "goal.warmup_fraction: Input should be greater than or equal to 0"),
+        ("cvae.dropout=1.0", "cvae.dropout: Input should be less than 1"),
+        ("cvae.decay_gamma=1.5", "cvae.decay_gamma: Input should be less than or equal to 1"),
+        ("goals.threshold=1", "goals.threshold: Input should be less than 1"),
+        ("forces.fov_out_of_view=1.5", "forces.fov_out_of_view: Input should be less than or equal to 1"),
+        ("windows.obs_len=1", "windows.obs_len: Input should be greater than or equal to 2"),
+        ("goal.widths=[8]", "goal.widths: Tuple should have at least 2 items"),
+        ("goal.widths=[8, 0]", "goal.widths.1: Input should be greater than 0"),
+        ("goals.parts=[]", "goals.parts: Tuple should have at least 1 item"),
+        ("report.benchmarks=[]", "report.benchmarks: Tuple should have at least 1 item"),
+    ],
+)
+def test_ranges_are_checked_with_the_key_and_the_bound(override: str, expected: str) -> None:
+    with pytest.raises(ConfigError, match=rf"{expected}.*\(got "):
+        load_config(None, [override])
+
+
+@pytest.mark.parametrize(
+    ("overrides", "expected"),
+    [
+        (["cvae.n_heads=3"], "cvae.n_heads: expected a divisor of d_model = 256 (got 3)"),
+        (["cvae.d_model=20", "cvae.n_heads=8"], "cvae.n_heads: expected a divisor of d_model = 20 (got 8)"),
+        (["goal.crop_cells=20"], "goal.crop_cells: expected a multiple of 16 (2 ** (len(widths) - 1)) (got 20)"),
+        (["goal.crop_cells=16", "goal.widths=[4, 8, 8]", "goal.heatmap_sigma_cells=7"], "goal.heatmap_sigma_cells: "),
+    ],
+)
+def test_cross_field_checks_name_the_key_and_what_was_expected(overrides: list[str], expected: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load_config(None, overrides)
+    assert expected in str(caught.value)
+
+
+def test_valid_cross_field_values_load() -> None:
+    cfg = load_config(None, ["cvae.d_model=20", "cvae.n_heads=5", "goal.crop_cells=20", "goal.widths=[4, 8, 8]"])
+    assert (cfg.cvae.d_model, cfg.cvae.n_heads, cfg.goal.crop_cells) == (20, 5, 20)
+
+
+def test_a_file_that_is_not_utf8_text_is_a_config_error(tmp_path: Path) -> None:
+    binary = tmp_path / "model.pt"
+    binary.write_bytes(b"PK\x03\x04\x80\xff\xfe binary")
+    with pytest.raises(
+        ConfigError, match=rf"^{re.escape(str(binary))}: not a UTF-8 TOML file \(undecodable byte at offset 4\)$"
+    ):
+        load_config(binary)
+
+
+def test_the_cli_reports_a_bad_value_as_a_usage_error(tmp_path: Path) -> None:
+    runner = CliRunner()
+    root = ["--root", str(tmp_path / "artifacts")]
+    infinite = runner.invoke(app, ["train-cvae", *root, "--set", "cvae.lr=inf"])
+    assert infinite.exit_code == 2 and "cvae.lr: Input should be a finite number (got inf)" in infinite.output
+    binary = tmp_path / "weights.bin"
+    binary.write_bytes(bytes(range(256)))
+    unreadable = runner.invoke(app, ["train-goal", *root, "-c", str(binary)])
+    assert unreadable.exit_code == 2 and "not a UTF-8 TOML file" in unreadable.output
+    assert not (tmp_path / "artifacts").exists()

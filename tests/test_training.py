@@ -1,0 +1,186 @@
+"""Checkpoints: atomic per-process writes, damaged resume files set aside, damaged model files refused."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import torch
+
+from fftool import training
+from fftool.errors import IntegrityError
+from fftool.training import Progress, model_file, resume, save_checkpoint, save_progress
+
+
+def _stateful(width: int = 3) -> dict:
+    torch.manual_seed(0)
+    model = torch.nn.Linear(width, 2)
+    return {"model": model, "optimizer": torch.optim.Adam(model.parameters(), lr=0.1)}
+
+
+def _step(stateful: dict) -> None:
+    stateful["optimizer"].zero_grad()
+    stateful["model"](torch.ones(1, stateful["model"].in_features)).sum().backward()
+    stateful["optimizer"].step()
+
+
+def _checkpoint(path: Path, width: int = 3) -> None:
+    """Two finished epochs of a trained tiny model, as the training stages write them."""
+    stateful = _stateful(width)
+    progress = Progress()
+    for epoch in range(2):
+        _step(stateful)
+        progress.record({"epoch": epoch + 1}, 1.0 / (epoch + 1), stateful["model"])
+        save_progress(path, progress, epoch, stateful)
+
+
+@pytest.fixture
+def warnings(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    said: list[str] = []
+    monkeypatch.setattr(training, "warn", said.append)
+    return said
+
+
+def test_a_checkpoint_resumes_after_its_last_epoch(tmp_path: Path, warnings: list[str]) -> None:
+    _checkpoint(tmp_path / "last.pt")
+    stateful = _stateful()
+    progress = resume(tmp_path / "last.pt", torch.device("cpu"), stateful)
+    assert (progress.start_epoch, progress.best_epoch, len(progress.log)) == (2, 2, 2)
+    assert stateful["optimizer"].state_dict()["state"][0]["step"] == 2
+    assert warnings == [] and sorted(p.name for p in tmp_path.iterdir()) == ["last.pt"]
+
+
+def test_the_partial_file_belongs_to_its_process(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    other = tmp_path / "last.pt.partial-1"  # another process, half-way through its own save
+    other.write_bytes(b"half")
+    written: list[str] = []
+    save = torch.save
+    monkeypatch.setattr(torch, "save", lambda obj, f: (written.append(Path(f).name), save(obj, f)))
+    save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
+    assert written == [f"last.pt.partial-{os.getpid()}"]
+    assert torch.load(tmp_path / "last.pt", weights_only=True) == {"epoch": 0}
+    assert other.read_bytes() == b"half"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt", "last.pt.partial-1"]
+
+
+def test_a_failed_save_keeps_the_old_checkpoint_and_no_partial_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
+
+    def full_disk(obj: object, f: Path) -> None:
+        Path(f).write_bytes(b"PK\x03\x04")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        save_checkpoint(tmp_path / "last.pt", {"epoch": 1})
+    assert [p.name for p in tmp_path.iterdir()] == ["last.pt"]
+    assert torch.load(tmp_path / "last.pt", weights_only=True) == {"epoch": 0}
+
+
+def _truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def _edit(change: Callable[[dict], None]) -> Callable[[Path], None]:
+    def damage(path: Path) -> None:
+        state = torch.load(path, weights_only=True)
+        change(state)
+        torch.save(state, path)
+
+    return damage
+
+
+def _moments(state: dict) -> None:
+    state["states"]["optimizer"]["state"][0]["exp_avg"] = torch.zeros(7)
+
+
+DAMAGE = {
+    "truncated": (_truncate, "does not load"),
+    "garbage": (lambda path: path.write_bytes(os.urandom(3000)), "does not load"),
+    "empty": (lambda path: path.write_bytes(b""), "does not load"),
+    "text": (lambda path: path.write_text("epoch = 3\n"), "does not load"),
+    "another model": (lambda path: _checkpoint(path, width=5), "size mismatch for weight"),
+    "missing keys": (_edit(lambda state: state.pop("best")), "KeyError: 'best'"),
+    "optimizer moments": (_edit(_moments), "optimizer exp_avg of shape [7] for [2, 3]"),
+    "best weights": (_edit(lambda s: s["best"]["state"].pop("bias")), "best weights do not match"),
+}
+
+
+@pytest.mark.parametrize("kind", DAMAGE)
+def test_a_damaged_resume_checkpoint_is_set_aside_and_training_starts_over(
+    tmp_path: Path, warnings: list[str], kind: str
+) -> None:
+    damage, problem = DAMAGE[kind]
+    path = tmp_path / "last.pt"
+    _checkpoint(path)
+    damage(path)
+    damaged = path.read_bytes()
+    stateful = _stateful()
+    fresh = {name: obj.state_dict() for name, obj in _stateful().items()}
+
+    progress = resume(path, torch.device("cpu"), stateful)
+
+    assert progress == Progress()  # epoch 0, empty log, no best weights
+    assert not path.exists()
+    (aside,) = tmp_path.glob("last.pt.damaged-*")
+    assert aside.name.endswith(f"-{os.getpid()}") and aside.read_bytes() == damaged  # kept, not deleted
+    assert len(warnings) == 1 and warnings[0].startswith(f"{path}: damaged resume checkpoint")
+    assert problem in warnings[0] and aside.name in warnings[0] and "weights_only" not in warnings[0]
+    for key, value in fresh["model"].items():  # a partial load was undone: the run starts from fresh weights
+        torch.testing.assert_close(stateful["model"].state_dict()[key], value)
+    assert stateful["optimizer"].state_dict()["state"] == {}
+    _step(stateful)  # and trains
+    save_progress(path, progress, 0, stateful)
+    assert resume(path, torch.device("cpu"), _stateful()).start_epoch == 1
+
+
+UNLOADABLE = "damaged or modified: it does not load as tensors and plain values"
+
+
+class _Tampered:
+    """Any object a pickle can smuggle in: weights-only loading must refuse it."""
+
+
+@pytest.mark.parametrize(
+    ("kind", "problem"),
+    [
+        ("garbage", UNLOADABLE),
+        ("truncated", UNLOADABLE),
+        ("pickled object", UNLOADABLE),
+        ("wrong contents", "its contents do not fit the model (KeyError: 'weights')"),
+    ],
+)
+def test_a_damaged_model_file_is_one_integrity_error(tmp_path: Path, kind: str, problem: str) -> None:
+    path = tmp_path / "model.pt"
+    save_checkpoint(path, {"weights": torch.ones(3)})
+    if kind == "garbage":
+        path.write_bytes(os.urandom(500))
+    elif kind == "truncated":
+        _truncate(path)
+    elif kind == "pickled object":
+        torch.save({"weights": _Tampered()}, path)
+    else:
+        save_checkpoint(path, {"state_dict": {}})
+    with (
+        pytest.raises(IntegrityError) as caught,
+        model_file(path, torch.device("cpu"), "fftool train-x --force") as saved,
+    ):
+        saved["weights"]
+    message = str(caught.value)
+    assert message == f"{path}: not a valid fftool checkpoint, {problem}; rebuild it with `fftool train-x --force`"
+    assert "weights_only" not in message
+
+
+def test_a_valid_model_file_loads_and_other_errors_pass_through(tmp_path: Path) -> None:
+    path = tmp_path / "model.pt"
+    save_checkpoint(path, {"weights": torch.ones(3)})
+    with model_file(path, torch.device("cpu"), "fftool train-x --force") as saved:
+        assert torch.equal(saved["weights"], torch.ones(3))
+    with pytest.raises(ZeroDivisionError), model_file(path, torch.device("cpu"), "fftool train-x --force"):
+        _ = 1 / 0
+    with pytest.raises(FileNotFoundError):
+        model_file(tmp_path / "missing.pt", torch.device("cpu"), "fftool train-x --force").__enter__()
