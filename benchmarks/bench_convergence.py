@@ -34,13 +34,12 @@ def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namesp
     from fftool import cvae, pipeline
     from fftool.config import load_config
 
-    fixed = [
-        f"data.raw_dir={str(args.raw.resolve())!r}",
-        f"cvae.variant={args.variant!r}",
-        f"cvae.val_max_windows={args.val_windows}",
-        *overrides,
-    ]
-    cfg = load_config(profile, fixed)
+    fixed = {
+        "data.raw_dir": str(args.raw.resolve()),
+        "cvae.variant": args.variant,
+        "cvae.val_max_windows": args.val_windows,
+    }
+    cfg = load_config(profile, overrides, fixed)
     built = pipeline.run(cfg, store, ["forces"])
     print(f"== {name}: {profile.name} {' '.join(overrides)}", flush=True)
     with tempfile.TemporaryDirectory() as work:
@@ -74,9 +73,7 @@ def _constant_velocity(args: argparse.Namespace, store, profile: Path) -> tuple[
     from fftool.protocols import constant_velocity
     from fftool.training import generator
 
-    cfg = load_config(
-        profile, [f"data.raw_dir={str(args.raw.resolve())!r}", f"cvae.val_max_windows={args.val_windows}"]
-    )
+    cfg = load_config(profile, [], {"data.raw_dir": str(args.raw.resolve()), "cvae.val_max_windows": args.val_windows})
     built = pipeline.run(cfg, store, ["forces"])
     val = load_scene_set(built["windows"], built["forces"], args.benchmark, "val")
     noise, gen = EvaluateConfig(), generator(0, torch.device("cpu"))

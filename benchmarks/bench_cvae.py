@@ -81,7 +81,7 @@ def main() -> None:
     err_console.quiet = True
     with tempfile.TemporaryDirectory() as root:
         built = pipeline.run(
-            load_config(None, [f"data.raw_dir={str(args.raw.resolve())!r}"]), ArtifactStore(root), ["forces"]
+            load_config(None, [], {"data.raw_dir": str(args.raw.resolve())}), ArtifactStore(root), ["forces"]
         )
         scenes = load_scene_set(built["windows"], built["forces"], "zara1", "train")
     err_console.quiet = False

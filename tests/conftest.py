@@ -67,10 +67,14 @@ def real_raw() -> Path:
 
 
 def snapshot(root: Path) -> dict[str, bytes]:
-    """Every file under root with its bytes: to prove a failed command changed nothing."""
+    """Every file under root with its bytes: to prove a failed command changed nothing.
+
+    The store's empty lock files (`.locks/`) are left out: they hold no data and must outlive builds.
+    """
     if not root.exists():
         return {}
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    files = (p for p in sorted(root.rglob("*")) if p.is_file() and ".locks" not in p.relative_to(root).parts)
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in files}
 
 
 SnapshotFn = Callable[[Path], dict[str, bytes]]

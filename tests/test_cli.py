@@ -106,7 +106,7 @@ def test_artifacts_list_show_verify(tmp_path: Path, raw_tree: Path) -> None:
     verify = invoke("artifacts", "verify", "--root", root)
     assert verify.exit_code == 1
     assert "CHANGED" in verify.output and "tracks.parquet: content changed" in verify.output
-    assert "Error: 1 of 2 artifact(s) changed since they were built" in verify.output
+    assert "Error: 1 of 2 artifact(s) changed, damaged or missing" in verify.output
     missing = invoke("artifacts", "show", "forces", "--root", root)
     assert missing.exit_code == 1 and "Error: no artifact matches 'forces'" in missing.output
 

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from fftool.errors import ArtifactMissing, FftoolError, SchemaError
+from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 from fftool.store import MANIFEST, ArtifactStore
 
 FP_A = "a" * 64
@@ -94,12 +97,89 @@ def test_killed_build_leaves_no_artifact_and_is_cleaned_next_time(store: Artifac
     assert not (store.root / ".incomplete").exists()
 
 
-def test_corrupt_manifest_is_not_an_artifact_and_heals(store: ArtifactStore) -> None:
+@pytest.mark.parametrize(
+    "manifest",
+    ["{not json", "[1, 2]", '{"kind": "demo"}', None],
+    ids=["not-json", "not-an-object", "keys-missing", "no-manifest"],
+)
+def test_unreadable_folder_is_reported_never_deleted(store: ArtifactStore, manifest: str | None) -> None:
+    artifact = _build(store)
+    if manifest is None:
+        (artifact.path / MANIFEST).unlink()
+    else:
+        (artifact.path / MANIFEST).write_text(manifest)
+    assert store.list() == []
+    with pytest.raises(IntegrityError, match="aaaaaaaaaaaaaaaa"):
+        store.lookup("demo", FP_A)
+    assert (artifact.path / "data.txt").read_text() == "hello"
+    [damaged] = store.damaged()
+    assert str(artifact.path) in str(damaged)
+
+
+def test_manifest_of_a_newer_fftool_is_kept_and_named(store: ArtifactStore) -> None:
+    artifact = _build(store)
+    data = json.loads((artifact.path / MANIFEST).read_text()) | {"fftool_version": "99.0", "signature": "x"}
+    (artifact.path / MANIFEST).write_text(json.dumps(data))
+    with pytest.raises(IntegrityError, match=r"unknown keys \['signature'\] \(written by fftool 99.0"):
+        store.lookup("demo", FP_A)
+    assert artifact.path.exists()
+
+
+def test_forced_rebuild_sets_an_unreadable_folder_aside(store: ArtifactStore) -> None:
     artifact = _build(store)
     (artifact.path / MANIFEST).write_text("{not json")
-    assert store.list() == []
-    assert store.lookup("demo", FP_A) is None
-    assert not artifact.path.exists()
+    rebuilt = _build(store, content="new")
+    assert store.lookup("demo", FP_A) == rebuilt
+    [aside] = (store.root / ".damaged").iterdir()
+    assert (aside / "data.txt").read_text() == "hello" and (aside / MANIFEST).read_text() == "{not json"
+
+
+def test_concurrent_builds_of_one_fingerprint_wait_for_each_other(store: ArtifactStore) -> None:
+    order: list[str] = []
+
+    def build(name: str) -> None:
+        with store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:
+            order.append(f"{name} start")
+            time.sleep(0.3)
+            (ctx.dir / "data.txt").write_text(name)
+            order.append(f"{name} end")
+
+    threads = [threading.Thread(target=build, args=(name,)) for name in ("a", "b")]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert order[0].endswith("start") and order[1].endswith("end") and order[1][0] == order[0][0]
+    assert store.verify(store.lookup("demo", FP_A)) == []
+
+
+def test_check_inputs_refuses_a_changed_input(store: ArtifactStore) -> None:
+    artifact = _build(store)
+    store.check_inputs({"demo": artifact}, {"demo": "fftool demo"})
+    (artifact.path / "data.txt").write_text("hellO")
+    with pytest.raises(
+        IntegrityError, match=r"artifact demo/a{16} .*data.txt: content changed.*`fftool demo --force`"
+    ):
+        store.check_inputs({"demo": artifact}, {"demo": "fftool demo"})
+
+
+def test_chain_walks_inputs_and_names_missing_ones(store: ArtifactStore) -> None:
+    with store.build("up", "1" * 64, schema_version=1, params={}, inputs={}) as ctx:
+        (ctx.dir / "u.txt").write_text("u")
+    upstream = ctx.artifact
+    with store.build("down", FP_A, schema_version=1, params={}, inputs={"up": "1" * 64, "raw/x.txt": "0" * 64}) as ctx:
+        (ctx.dir / "d.txt").write_text("d")
+    down = ctx.artifact
+    assert [a.id for a in store.chain(down)] == [down.id, upstream.id]
+    shutil.rmtree(upstream.path)
+    assert store.chain(down)[1] == f"up/{'1' * 16} (an input of {down.id}) is no longer in the store"
+
+
+@pytest.mark.parametrize("ref", ["../..", "../../etc/passwd", "demo/../../x", "/etc"])
+def test_resolve_refuses_paths(store: ArtifactStore, ref: str) -> None:
+    _build(store)
+    with pytest.raises(FftoolError, match="is not an artifact id"):
+        store.resolve(ref)
 
 
 def test_verify_reports_changed_missing_and_extra_files(store: ArtifactStore) -> None:

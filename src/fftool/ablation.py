@@ -2,7 +2,8 @@
 
 `run` asks the pipeline for one `evaluate` artifact per cell, so whatever is missing upstream (tracks,
 forces, the goal U-Net, goal samples, the CVAE of that variant) is built first and whatever exists is
-reused. `write_report` renders Tables II-IV and replaces the report folder atomically.
+reused. `write_report` renders Tables II-IV and replaces the report folder atomically, and only a
+folder fftool may replace (`check_report_folder`): new, empty, or a previous report (its marker file).
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ from typing import Any
 
 import torch
 
-from fftool import pipeline, tables
+from fftool import __version__, pipeline, tables
 from fftool.config import PipelineConfig
+from fftool.errors import UsageError
 from fftool.published import PREDICTORS
 from fftool.schema import PREDICTIONS_FILE
 from fftool.store import ArtifactStore
@@ -114,6 +116,40 @@ def caption(cfg: PipelineConfig, profile: str) -> str:
     )
 
 
+REPORT_MARKER = ".fftool-report"  # marks a folder as a report fftool wrote and may replace
+
+
+def check_report_folder(out_dir: Path, artifact_root: Path, reports_dir: Path) -> Path:
+    """`out_dir` resolved, if a report may replace it; UsageError otherwise (nothing is touched).
+
+    Refused: the artifact root and anything inside it but `reports_dir`, the current and the home
+    directory, any parent of those, a file, and a folder holding anything but a previous report.
+    """
+    target, root = out_dir.expanduser().resolve(), artifact_root.resolve()
+    flag = f"--out {out_dir}"
+    for what, protected in (
+        ("the artifact root", root),
+        ("the current directory", Path.cwd()),
+        ("your home", Path.home()),
+    ):
+        if protected.resolve().is_relative_to(target):
+            raise UsageError(f"{flag}: refused, it is {what} or holds it; give a folder of its own for the report")
+    if target.is_relative_to(root) and not target.is_relative_to(reports_dir.resolve()):
+        raise UsageError(f"{flag}: refused, it lies inside the artifact root {root}; reports go under {reports_dir}")
+    _check_replaceable(target, flag)
+    return target
+
+
+def _check_replaceable(target: Path, flag: str) -> None:
+    if target.exists() and not target.is_dir():
+        raise UsageError(f"{flag}: refused, it is a file; give a folder")
+    if target.is_dir() and any(target.iterdir()) and not (target / REPORT_MARKER).is_file():
+        raise UsageError(
+            f"{flag}: refused, the folder holds files fftool did not write (no {REPORT_MARKER} marker); "
+            "give a new or empty folder"
+        )
+
+
 def write_report(
     cfg: PipelineConfig,
     results: list[dict[str, Any]],
@@ -123,7 +159,10 @@ def write_report(
     seconds: float,
     draw: Callable[[Path], list[Path]] | None = None,
 ) -> Path:
-    """Tables II-IV (md, csv, tex), results.csv and report.md; the old report is replaced only when complete."""
+    """Tables II-IV (md, csv, tex), results.csv and report.md; the old report is replaced only when complete.
+
+    `out_dir` must have passed `check_report_folder`; it is checked again here, just before the swap.
+    """
     frame = tables.results_frame(results, cfg.report.collision_pairs, cfg.report.collision_sample)
     text = caption(cfg, profile)
     built = [tables.table2(frame, text), tables.table3(frame, text), tables.table4(frame, text)]
@@ -131,11 +170,15 @@ def write_report(
     shutil.rmtree(partial, ignore_errors=True)
     try:
         tables.write(built, partial, _preamble(command, seconds, results))
+        (partial / REPORT_MARKER).write_text(f"written by fftool {__version__}; the next report replaces this folder\n")
         frame.assign(artifact=[r["artifact"] for r in results]).to_csv(partial / "results.csv", index=False)
         if draw:
             with (partial / "report.md").open("a") as report:
                 report.writelines(f"\n![{path.stem}]({path.name})\n" for path in draw(partial))
         old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+        _check_replaceable(out_dir, f"report folder {out_dir}")  # it may have changed during a long run
+        if out_dir.is_dir() and not any(out_dir.iterdir()):
+            out_dir.rmdir()  # an empty folder the user made for the report
         if out_dir.exists():
             out_dir.rename(old)
         partial.rename(out_dir)

@@ -8,13 +8,14 @@ pyarrow, torch) are imported inside commands so `fftool --help` stays fast.
 from __future__ import annotations
 
 import functools
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import typer
 
-from fftool.errors import ConfigError, FftoolError
+from fftool.errors import FftoolError, UsageError
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -48,14 +49,14 @@ ForceOption = Annotated[bool, typer.Option("--force", help="Rebuild even if an a
 
 
 def _boundary(func: F) -> F:
-    """Turn fftool errors (and OS errors on user paths) into `Error: …`, exit 1 (2 for config), no traceback."""
+    """Turn every error into one `Error: …` line: exit 2 for usage (config, --out), 1 otherwise, no traceback."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         code = 1
         try:
             return func(*args, **kwargs)
-        except ConfigError as exc:  # a bad --set or pipeline file is a usage error
+        except UsageError as exc:  # a bad --set, pipeline file or --out folder
             message, code = str(exc), 2
         except FftoolError as exc:
             message = str(exc)
@@ -63,6 +64,15 @@ def _boundary(func: F) -> F:
             message = f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": ")
         except KeyboardInterrupt:
             message = "interrupted; no partial artifact was kept"
+        except (typer.Exit, typer.BadParameter):
+            raise
+        except Exception as exc:  # the last line of defence: a user never sees a traceback
+            if os.environ.get("FFTOOL_DEBUG"):
+                raise
+            message = (
+                f"unexpected {type(exc).__name__}: {exc} (input fftool does not check yet, or a bug; "
+                "FFTOOL_DEBUG=1 shows the traceback)"
+            )
         _fail(message, code)
 
     return wrapper  # type: ignore[return-value]
@@ -89,13 +99,17 @@ def _run_stages(
     force: bool,
     device: str = "auto",
     benchmark: str | None = None,
+    values: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """What every stage command does: resolve the config, build its own stage(s), require the rest."""
+    """What every stage command does: resolve the config, build its own stage(s), require the rest.
+
+    `values` are the command's typed options (`{"section.key": value}`), applied after `--set`.
+    """
     from fftool import pipeline
     from fftool.config import load_config
 
     return pipeline.run(
-        load_config(config, list(overrides or [])),
+        load_config(config, list(overrides or []), values),
         _store(root),
         targets,
         force=targets if force else [],
@@ -138,8 +152,8 @@ def ingest(
     from fftool.reports import windows_summary_table
     from fftool.ui import out_console
 
-    overrides = list(set_ or []) + ([f"data.raw_dir={str(raw)!r}"] if raw else [])
-    built = _run_stages(["tracks", "windows"], config, overrides, root, force)
+    values = {"data.raw_dir": str(raw)} if raw else {}
+    built = _run_stages(["tracks", "windows"], config, set_, root, force, values=values)
     out_console.print(windows_summary_table(built["windows"]))
 
 
@@ -307,8 +321,7 @@ def train_cvae(
     from fftool.reports import training_table
     from fftool.ui import out_console
 
-    overrides = [*(set_ or []), f"cvae.variant={variant!r}"]
-    built = _run_stages(["cvae"], config, overrides, root, force, device, benchmark)
+    built = _run_stages(["cvae"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
     out_console.print(training_table(built["cvae"], f"CVAE {variant}"))
 
 
@@ -395,13 +408,13 @@ def evaluate(
     from fftool.reports import evaluation_table
     from fftool.ui import out_console
 
-    overrides = [*(set_ or []), f"evaluate.predictor={'cv' if variant == 'cv' else 'cvae'!r}"]
+    values = {"evaluate.predictor": "cv" if variant == "cv" else "cvae"}
     if variant != "cv":
-        overrides.append(f"cvae.variant={variant!r}")
+        values["cvae.variant"] = variant
     if protocol:
-        overrides.append(f"evaluate.protocol={protocol!r}")
+        values["evaluate.protocol"] = protocol
     built = [
-        _run_stages(["evaluate"], config, overrides, root, force, device, benchmark)["evaluate"]
+        _run_stages(["evaluate"], config, set_, root, force, device, benchmark, values)["evaluate"]
         for benchmark in benchmarks.split(",")
     ]
     out_console.print(evaluation_table(built))
@@ -427,13 +440,13 @@ def _ablation(
     from fftool.ui import log, out_console
 
     started = time.perf_counter()
-    overrides = [*(set_ or [])]
-    if protocol:
-        overrides.append(f"evaluate.protocol={protocol!r}")
-    cfg = load_config(config, overrides)
+    cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
     chosen_benchmarks = benchmarks.split(",") if benchmarks else list(cfg.report.benchmarks)
     chosen_variants = variants.split(",") if variants is not None else list(cfg.report.variants)
     store = _store(root)
+    profile = config.stem if config else "defaults"
+    reports_dir = store.root / cfg.report.out_dir  # an absolute out_dir replaces the root
+    out_dir = ablation.check_report_folder(out or reports_dir / profile, store.root, reports_dir)  # before any work
     results = ablation.run(
         cfg,
         store,
@@ -442,8 +455,6 @@ def _ablation(
         [v for v in chosen_variants if v],
         on_cell=lambda b, p: log(f"[bold]{b} / {p}[/]"),
     )
-    profile = config.stem if config else "defaults"
-    out_dir = out or store.root / cfg.report.out_dir / profile  # an absolute out_dir replaces the root
     draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
     report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started, draw)
     for table in [*report_tables(report.parent), run_summary(results)]:
@@ -454,7 +465,11 @@ def _ablation(
 OutOption = Annotated[
     Path | None,
     typer.Option(
-        "--out", file_okay=False, help="Report folder. Default: <root>/reports/<profile>.", show_default=False
+        "--out",
+        file_okay=False,
+        help="Report folder: new, empty, or a previous fftool report (it is replaced). Default: "
+        "<root>/reports/<profile>.",
+        show_default=False,
     ),
 ]
 
@@ -539,8 +554,8 @@ def plot(
     from fftool.ui import log
 
     predictors = [_check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
-    overrides = [*(set_ or []), *([f"evaluate.protocol={protocol!r}"] if protocol else [])]
-    cfg, store = load_config(config, overrides), _store(root)
+    cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
+    store = _store(root)
     runtime = pipeline.Runtime(device=device)
     evaluations, frames, windows_artifact = [], {}, None
     for predictor in predictors:
@@ -616,25 +631,35 @@ def artifacts_show(
     out_console.print(JSON(artifact.manifest.to_json()))
 
 
-@artifacts_app.command("verify", epilog="Example: fftool artifacts verify            # every artifact")
+@artifacts_app.command(
+    "verify",
+    epilog="Examples:\n\n  fftool artifacts verify              # every artifact, and folders that cannot be read\n\n"
+    "  fftool artifacts verify cvae/3f9c2a  # one artifact and every artifact it was built from",
+)
 @_boundary
 def artifacts_verify(
-    artifact_id: Annotated[str | None, typer.Argument(metavar="[ID]", help="One artifact; default: all.")] = None,
+    artifact_id: Annotated[
+        str | None, typer.Argument(metavar="[ID]", help="One artifact and its inputs, recursively; default: all.")
+    ] = None,
     root: RootOption = None,
 ) -> None:
     """Re-hash artifact files and report any that changed since they were built (exit 1 if any)."""
+    from fftool.store import Artifact
     from fftool.ui import out_console
 
     store = _store(root)
-    targets = [store.resolve(artifact_id)] if artifact_id else store.list()
-    changed = 0
-    for artifact in targets:
-        problems = store.verify(artifact)
-        changed += bool(problems)
-        status = "[green]ok[/]" if not problems else "[red]CHANGED[/]"
-        out_console.print(f"{status}  {artifact.id}")
+    targets = store.chain(store.resolve(artifact_id)) if artifact_id else [*store.list(), *store.damaged()]
+    bad = 0
+    for target in targets:
+        if isinstance(target, Artifact):
+            problems = store.verify(target)
+            out_console.print(f"{'[red]CHANGED[/]' if problems else '[green]ok[/]'}  {target.id}")
+        else:  # a folder that cannot be read (IntegrityError) or an input no longer in the store (str)
+            problems = [str(target)]
+            out_console.print("[red]DAMAGED[/]" if isinstance(target, FftoolError) else "[red]MISSING[/]")
         for problem in problems:
-            out_console.print(f"      {problem}")
-    if changed:
-        raise FftoolError(f"{changed} of {len(targets)} artifact(s) changed since they were built")
+            out_console.print(f"      {problem}", markup=False, soft_wrap=True)
+        bad += bool(problems)
+    if bad:
+        raise FftoolError(f"{bad} of {len(targets)} artifact(s) changed, damaged or missing")
     out_console.print(f"{len(targets)} artifact(s) verified")

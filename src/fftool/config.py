@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -283,20 +284,34 @@ def _parse_value(text: str) -> Any:
         return text
 
 
-def apply_overrides(raw: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Apply `section.key=value` strings to a nested dict; unknown sections fail in validation."""
+def apply_overrides(
+    raw: dict[str, Any], overrides: list[str], values: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """Apply `section.key=value` strings, then typed `{"section.key": value}` values, to a nested dict.
+
+    Typed values (what CLI options already parsed, e.g. a path) are set as they are, never turned into
+    text and parsed again. Unknown sections fail in validation.
+    """
     merged = {k: dict(v) if isinstance(v, dict) else v for k, v in raw.items()}
-    for item in overrides:
-        key, sep, value = item.partition("=")
-        parts = key.strip().split(".")
-        if not sep or len(parts) != 2 or not all(parts):
+    pairs = [(item, *item.partition("=")[::2]) for item in overrides]
+    for item, key, value in pairs:
+        if "=" not in item:
             raise ConfigError(f"override {item!r}: expected section.key=value, e.g. ingest.frame_stride=10")
-        section, name = parts
-        target = merged.setdefault(section, {})
-        if not isinstance(target, dict):
-            raise ConfigError(f"override {item!r}: {section!r} is not a section")
-        target[name] = _parse_value(value.strip())
+        _set(merged, key.strip(), _parse_value(value.strip()), f"override {item!r}")
+    for key, value in (values or {}).items():
+        _set(merged, key, value, f"value for {key!r}")
     return merged
+
+
+def _set(merged: dict[str, Any], key: str, value: Any, what: str) -> None:
+    parts = key.split(".")
+    if len(parts) != 2 or not all(parts):
+        raise ConfigError(f"{what}: expected section.key=value, e.g. ingest.frame_stride=10")
+    section, name = parts
+    target = merged.setdefault(section, {})
+    if not isinstance(target, dict):
+        raise ConfigError(f"{what}: {section!r} is not a section")
+    target[name] = value
 
 
 def _describe(error: ValidationError, origin: str) -> str:
@@ -313,8 +328,10 @@ def _describe(error: ValidationError, origin: str) -> str:
     return f"invalid configuration in {origin}: " + "; ".join(lines)
 
 
-def load_config(path: Path | None = None, overrides: list[str] | None = None) -> PipelineConfig:
-    """Resolve defaults ← TOML file ← overrides into a validated `PipelineConfig`."""
+def load_config(
+    path: Path | None = None, overrides: list[str] | None = None, values: Mapping[str, Any] | None = None
+) -> PipelineConfig:
+    """Resolve defaults ← TOML file ← `--set` overrides ← typed values into a validated `PipelineConfig`."""
     raw: dict[str, Any] = {}
     origin = "defaults"
     if path is not None:
@@ -327,9 +344,9 @@ def load_config(path: Path | None = None, overrides: list[str] | None = None) ->
             raise ConfigError(f"{path}: not a UTF-8 TOML file (undecodable byte at offset {exc.start})") from exc
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
-    if overrides:
-        raw = apply_overrides(raw, overrides)
-        origin = f"{origin} with overrides {overrides}"
+    if overrides or values:
+        raw = apply_overrides(raw, list(overrides or []), values)
+        origin = f"{origin} with overrides {[*(overrides or []), *(values or {})]}"
     try:
         return PipelineConfig.model_validate(raw)
     except ValidationError as exc:

@@ -1,7 +1,8 @@
 """One root exception and small subclasses; messages say what went wrong and what to do.
 
-The CLI turns every `FftoolError` into `Error: <message>` and exit code 1. Library code never prints
-errors or exits.
+The CLI turns every `FftoolError` into `Error: <message>` and exit code 1 (2 for a `UsageError`: the
+command line or configuration asked for something fftool refuses). Library code never prints errors or
+exits.
 """
 
 from __future__ import annotations
@@ -20,7 +21,11 @@ class FftoolError(Exception):
         return self.message
 
 
-class ConfigError(FftoolError, ValueError):
+class UsageError(FftoolError):
+    """The command line asked for something fftool refuses (exit code 2), e.g. an unsafe --out folder."""
+
+
+class ConfigError(UsageError, ValueError):
     """A configuration key is unknown, has the wrong type or an invalid value."""
 
 

@@ -7,7 +7,6 @@ frame id of the last observed step). People understand forces by looking at them
 from __future__ import annotations
 
 import itertools
-import os
 from pathlib import Path
 
 import numpy as np
@@ -73,10 +72,9 @@ def explain_window(
     re_scale_s2: float = 10.0,
 ) -> Path:
     """Render the window ending at `frame_id` of `scene`'s test recording to a PNG; return its path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from fftool.plots import save_figure  # sets the Agg backend
 
     window_id, source, t0_step = _find_window(windows, scene, frame_id, source)
     obs_len = int(windows.manifest.stats["obs_len"])
@@ -129,9 +127,4 @@ def explain_window(
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.partial")
-    fig.savefig(partial, format="png", bbox_inches="tight")
-    plt.close(fig)
-    os.replace(partial, out)
-    return out
+    return save_figure(fig, out, bbox_inches="tight")

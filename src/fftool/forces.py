@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 import torch
 
 from fftool.config import ForcesConfig
+from fftool.errors import FftoolError
 from fftool.groups import cluster_frames
 from fftool.schema import (
     AGENT_WINDOWS_FILE,
@@ -39,6 +40,9 @@ VERSION: Final = 2  # 2: the time step used is recorded in the stats (dt_s) for 
 INPUTS: Final = ("tracks", "windows")
 # Pairwise work per batch (windows × actors² × steps): bounds the pairwise tensors to ~8 MB each.
 _PAIR_BUDGET = 1_000_000
+# One recording's dense (pedestrian, step) grid: 25 bytes a cell, so about 1.2 GB at most. The real
+# recordings need at most about 0.6 million cells; a frame-id jump of millions would need terabytes.
+MAX_GRID_CELLS = 50_000_000
 
 
 @dataclass
@@ -61,6 +65,12 @@ def _sequences(tracks: pd.DataFrame, cfg: ForcesConfig) -> dict[tuple[str, str],
         ped_id, ped = np.unique(rows["ped_id"].to_numpy(), return_inverse=True)
         step = rows["step"].to_numpy()
         first, n_steps = int(step.min()), int(step.max() - step.min() + 1)
+        if ped_id.size * n_steps > MAX_GRID_CELLS:
+            raise FftoolError(
+                f"{source} ({split}): {ped_id.size} pedestrians over {n_steps} steps (frame ids {first} to "
+                f"{int(step.max())}) exceed the dense time grid forces are computed on "
+                f"({MAX_GRID_CELLS:,} pedestrian-steps); split the recording where its frame ids jump"
+            )
         position = np.zeros((ped_id.size, n_steps, 2))
         present = np.zeros((ped_id.size, n_steps), dtype=bool)
         label = np.full((ped_id.size, n_steps), -1, dtype=np.int64)

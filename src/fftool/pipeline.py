@@ -15,6 +15,7 @@ Only this module knows every stage; stages never import each other.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -319,17 +320,58 @@ def run(
         if not upstream and stage.name not in targets:
             built[stage.name] = store.require(stage.name, fp, stage.version, stage.command)
             continue
-        existing = store.lookup(stage.name, fp)
-        if existing is not None and stage.name not in forced:
-            check_schema(existing, stage.name, stage.version, stage.command)
-            log(f"stage {stage.name!r} is cached (fp {fp[:12]}…) - skipping")
-            built[stage.name] = existing
-            continue
-        log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
-        with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
-            inputs = {name: built[name] for name in stage.inputs_for(cfg)}
-            ctx.stats = stage.build(cfg, inputs, ctx, runtime or Runtime(), benchmark)
-        assert ctx.artifact is not None
-        log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
-        built[stage.name] = ctx.artifact
+        existing = None if stage.name in forced else _cached(store, stage, fp)
+        if existing is not None and stage.name in targets:  # the caller reads it: check its bytes first
+            store.check_inputs({stage.name: existing}, {stage.name: stage.command})
+        if existing is None:
+            lock = store.lock(stage.name, fp)
+            if not _try(lock):
+                log(f"stage {stage.name!r}: another fftool process is building it (fp {fp[:12]}…) - waiting")
+            with lock:  # the other process may have built it meanwhile
+                existing = None if stage.name in forced else _cached(store, stage, fp)
+                if existing is None:
+                    existing = _build(cfg, store, item, built, runtime or Runtime(), benchmark)
+        built[stage.name] = existing
     return built
+
+
+def _try(lock: Any) -> bool:
+    """Take `lock` if it is free (then release it to the `with` that follows); False if it is held."""
+    from filelock import Timeout
+
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        return False
+    lock.release()
+    return True
+
+
+def _cached(store: ArtifactStore, stage: Stage, fp: str) -> Artifact | None:
+    existing = store.lookup(stage.name, fp)
+    if existing is not None:
+        check_schema(existing, stage.name, stage.version, stage.command)
+        log(f"stage {stage.name!r} is cached (fp {fp[:12]}…) - skipping")
+    return existing
+
+
+def _build(
+    cfg: PipelineConfig,
+    store: ArtifactStore,
+    item: Resolved,
+    built: Mapping[str, Artifact],
+    runtime: Runtime,
+    benchmark: str | None,
+) -> Artifact:
+    """Build one stage from verified inputs (their files are re-hashed first; the time it takes is recorded)."""
+    stage, fp = item.stage, item.fingerprint
+    log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
+    inputs = {name: built[name] for name in stage.inputs_for(cfg)}
+    started = time.perf_counter()
+    store.check_inputs(inputs, {name: STAGES[name].command for name in inputs})
+    checked_s = time.perf_counter() - started
+    with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
+        ctx.stats = stage.build(cfg, inputs, ctx, runtime, benchmark) | {"input_check_seconds": round(checked_s, 4)}
+    assert ctx.artifact is not None
+    log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
+    return ctx.artifact

@@ -7,6 +7,7 @@ when the scene folder has one (axes are then image pixels), else the axes are wo
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -20,12 +21,42 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from fftool import __version__
 from fftool.batches import AgentWindows
+from fftool.errors import UsageError
 from fftool.maps import read_homography
 from fftool.published import PAPER_NAMES
 from fftool.scenes import SOURCE_SCENE
 
+SOFTWARE = f"fftool {__version__}"  # PNG metadata: marks a figure fftool may overwrite
 COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff7f0e", "re": "#d62728"}
+
+
+def save_figure(fig: plt.Figure, out: Path, **savefig: object) -> Path:
+    """Write `fig` as PNG atomically; never overwrite a file fftool did not write (UsageError, exit 2)."""
+    if out.exists() and not _written_by_fftool(out):
+        raise UsageError(
+            f"{out}: exists and was not written by fftool; refusing to overwrite it (choose another --out)"
+        )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(f".{out.name}.partial-{os.getpid()}")
+    try:
+        fig.savefig(partial, format="png", metadata={"Software": SOFTWARE}, **savefig)
+        os.replace(partial, out)
+    finally:
+        partial.unlink(missing_ok=True)
+        plt.close(fig)
+    return out
+
+
+def _written_by_fftool(path: Path) -> bool:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            return str(image.info.get("Software", "")).startswith("fftool ")
+    except (OSError, UnidentifiedImageError):
+        return False
 
 
 @dataclass(frozen=True)
@@ -115,9 +146,7 @@ def qualitative(
     ]
     fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=120)
 
 
 def _draw_window(ax, scene: SceneImage, xy: np.ndarray, futures: np.ndarray, obs_len: int, colour: str) -> None:
@@ -165,6 +194,4 @@ def density_curves(results: Mapping[str, Mapping[str, pd.DataFrame]], out: Path)
         axes[1, col].set_xlabel("valid agents in the window")
     axes[0, 0].legend(frameon=False)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=120)

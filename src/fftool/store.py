@@ -3,7 +3,10 @@
 Layout: `<root>/<kind>/<fingerprint[:16]>/` holds the data files and `manifest.json`. A build happens
 in `<root>/.incomplete/<kind>-<fp16>-<pid>/` and is renamed into place only after the manifest is
 written, so an interrupted build leaves no artifact behind; leftovers of dead processes are removed
-the next time the store builds. A folder without a valid manifest is not an artifact.
+the next time the store builds. A folder without a valid manifest is not an artifact, but it is never
+deleted either: it is reported as damaged (`damaged`, `artifacts verify`) and a forced rebuild moves it
+to `<root>/.damaged/`. Builds of one fingerprint are serialised by a per-fingerprint file lock, so a
+second process waits and then finds the artifact built.
 """
 
 from __future__ import annotations
@@ -11,22 +14,31 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import subprocess
+import time
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from filelock import FileLock
+
 from fftool import __version__
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 from fftool.hashing import sha256_file
+from fftool.ui import warn
 
 MANIFEST = "manifest.json"
 _INCOMPLETE = ".incomplete"
 _SCRATCH = ".scratch"  # survives failed builds: resumable training checkpoints live here
+_LOCKS = ".locks"
+_DAMAGED = ".damaged"  # unreadable folders a forced rebuild had to replace: kept for the user to inspect
+_KIND = re.compile(r"[a-z][a-z0-9_]*")
 _FP_DIR_LEN = 16
+_FP_DIR = re.compile(rf"[0-9a-f]{{{_FP_DIR_LEN}}}")  # artifact folders; anything else (reports) is not one
 ENV_ROOT = "FFTOOL_ARTIFACTS"
 
 
@@ -55,10 +67,20 @@ class Manifest:
 
     @classmethod
     def from_json(cls, text: str) -> Manifest:
-        data = json.loads(text)
+        """Parse a manifest; ValueError says what is wrong (not JSON, keys missing, unknown keys)."""
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"not JSON ({exc})") from None
+        if not isinstance(data, dict):
+            raise ValueError("not a JSON object")
         missing = {"kind", "schema_version", "fingerprint", "params", "inputs", "files"} - set(data)
         if missing:
             raise ValueError(f"missing keys {sorted(missing)}")
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            version = data.get("fftool_version", "unknown")
+            raise ValueError(f"unknown keys {sorted(unknown)} (written by fftool {version}, this is {__version__})")
         return cls(**data)
 
 
@@ -134,45 +156,75 @@ class ArtifactStore:
 
     def __init__(self, root: Path | str) -> None:
         self.root = Path(root)
+        self._locks: dict[Path, FileLock] = {}
+        self._fresh = not self.root.exists()  # a root this store creates is removed again if nothing lands
 
     def path_for(self, kind: str, fp: str) -> Path:
         return self.root / kind / fp[:_FP_DIR_LEN]
 
-    def _read(self, folder: Path) -> Artifact | None:
+    def _read(self, folder: Path) -> Artifact:
+        """The artifact in `folder`; IntegrityError naming the folder when its manifest cannot be read."""
         try:
-            return Artifact(folder, Manifest.from_json((folder / MANIFEST).read_text()))
-        except (OSError, ValueError, TypeError):
-            return None
+            text = (folder / MANIFEST).read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise IntegrityError(f"{folder}: no readable {MANIFEST} ({exc.__class__.__name__})") from None
+        try:
+            manifest = Manifest.from_json(text)
+        except (ValueError, TypeError) as exc:
+            raise IntegrityError(f"{folder / MANIFEST}: not an fftool manifest ({exc})") from None
+        if folder.name != manifest.fingerprint[:_FP_DIR_LEN] or folder.parent.name != manifest.kind:
+            raise IntegrityError(
+                f"{folder}: its manifest describes {manifest.kind}/{manifest.fingerprint[:_FP_DIR_LEN]}, "
+                "not this folder"
+            )
+        return Artifact(folder, manifest)
 
     def lookup(self, kind: str, fp: str) -> Artifact | None:
-        """The complete artifact for (kind, fp), or None. A folder with a corrupt manifest is removed."""
+        """The complete artifact for (kind, fp), or None if there is none.
+
+        A folder at that place whose manifest cannot be read raises IntegrityError and is left as it is:
+        it may be a user's file, or an artifact of a newer fftool.
+        """
         folder = self.path_for(kind, fp)
         if not folder.exists():
             return None
         artifact = self._read(folder)
-        if artifact is None or artifact.fingerprint != fp or artifact.kind != kind:
-            shutil.rmtree(folder, ignore_errors=True)
-            return None
+        if artifact.fingerprint != fp:
+            raise IntegrityError(f"{folder}: holds fingerprint {artifact.fingerprint[:24]}…, expected {fp[:24]}…")
         return artifact
 
-    def list(self, kind: str | None = None) -> list[Artifact]:
-        """Every complete artifact (of one kind if given), oldest first."""
-        if not self.root.exists():
-            return []
+    def _folders(self, kind: str | None) -> Iterator[Path]:
+        if not self.root.is_dir():
+            return
         kinds = [self.root / kind] if kind else sorted(p for p in self.root.iterdir() if p.is_dir())
-        found = []
         for kind_dir in kinds:
-            if kind_dir.name.startswith(".") or not kind_dir.is_dir():
+            if not _KIND.fullmatch(kind_dir.name) or not kind_dir.is_dir():
                 continue
-            for folder in sorted(kind_dir.iterdir()):
-                artifact = self._read(folder) if folder.is_dir() else None
-                if artifact is not None:
-                    found.append(artifact)
+            yield from sorted(f for f in kind_dir.iterdir() if f.is_dir() and _FP_DIR.fullmatch(f.name))
+
+    def list(self, kind: str | None = None) -> list[Artifact]:
+        """Every complete artifact (of one kind if given), oldest first; damaged folders are skipped."""
+        found = []
+        for folder in self._folders(kind):
+            with contextlib.suppress(IntegrityError):
+                found.append(self._read(folder))
         return sorted(found, key=lambda a: (a.manifest.created_at, a.id))
+
+    def damaged(self, kind: str | None = None) -> list[IntegrityError]:
+        """One error per folder under the root that looks like an artifact but cannot be read."""
+        problems = []
+        for folder in self._folders(kind):
+            try:
+                self._read(folder)
+            except IntegrityError as exc:
+                problems.append(exc)
+        return problems
 
     def resolve(self, ref: str) -> Artifact:
         """Find an artifact by `kind/fp-prefix`, `kind` (the newest) or a bare fingerprint prefix."""
         kind, _, prefix = ref.rpartition("/") if "/" in ref else ("", "", ref)
+        if ("/" in ref and not _KIND.fullmatch(kind)) or (prefix and not re.fullmatch(r"[a-z0-9_]+", prefix)):
+            raise FftoolError(f"{ref!r} is not an artifact id (kind/fingerprint-prefix, e.g. windows/3f9c2a)")
         candidates = self.list(kind or None)
         if kind and not prefix:
             matches = candidates[-1:]
@@ -213,6 +265,40 @@ class ArtifactStore:
         problems.extend(f"{name}: not listed in the manifest" for name in on_disk)
         return problems
 
+    def check_inputs(self, artifacts: Mapping[str, Artifact], made_by: Mapping[str, str]) -> None:
+        """Refuse to build from (or read) artifacts whose files changed since they were built.
+
+        `made_by` names the command that rebuilds each input; the error names the artifact and the file.
+        """
+        for name, artifact in artifacts.items():
+            problems = self.verify(artifact)
+            if problems:
+                more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+                raise IntegrityError(
+                    f"artifact {artifact.id} ({artifact.path}) changed since it was built: {problems[0]}{more}; "
+                    f"nothing was built from it or read. Rebuild it with `{made_by.get(name, 'fftool')} --force`"
+                )
+
+    def chain(self, artifact: Artifact) -> list[Artifact | str]:
+        """The artifact and every artifact it was built from, depth first; a missing input is a message."""
+        found: list[Artifact | str] = [artifact]
+        for kind, fp in artifact.manifest.inputs.items():
+            if not _KIND.fullmatch(kind):  # a raw file's content hash, not an artifact
+                continue
+            upstream = self.lookup(kind, fp)
+            if upstream is None:
+                found.append(f"{kind}/{fp[:_FP_DIR_LEN]} (an input of {artifact.id}) is no longer in the store")
+            else:
+                found.extend(item for item in self.chain(upstream) if item not in found)
+        return found
+
+    def lock(self, kind: str, fp: str) -> FileLock:
+        """The per-fingerprint lock builds hold; one object per path, so it is re-entrant in a process."""
+        path = self.root / _LOCKS / f"{kind}-{fp[:_FP_DIR_LEN]}.lock"
+        if path not in self._locks:  # filelock creates the folder when it first acquires
+            self._locks[path] = FileLock(path)
+        return self._locks[path]
+
     def clean_incomplete(self) -> list[Path]:
         """Remove build folders whose process has died (a killed build leaves one behind)."""
         removed = []
@@ -237,11 +323,24 @@ class ArtifactStore:
     ) -> Iterator[BuildContext]:
         """Build an artifact atomically: write into `ctx.dir`, set `ctx.stats`; rename on success.
 
-        On any exception (KeyboardInterrupt included) the temporary folder is removed and an existing
-        artifact at the destination is left untouched.
+        Holds the fingerprint's lock throughout, so builds of one fingerprint never overlap. On any
+        exception (KeyboardInterrupt included) the temporary folder is removed and an existing artifact
+        at the destination is left untouched.
         """
+        lock = self.lock(kind, fp)
+        try:
+            with lock:
+                yield from self._build_locked(kind, fp, schema_version, params, inputs)
+        finally:
+            if self._fresh and not self.path_for(kind, fp).exists():  # a failed first build leaves no trace
+                Path(lock.lock_file).unlink(missing_ok=True)
+                for folder in (Path(lock.lock_file).parent, self.root):
+                    _remove_empty(folder)
+
+    def _build_locked(
+        self, kind: str, fp: str, schema_version: int, params: Mapping[str, Any], inputs: Mapping[str, str]
+    ) -> Iterator[BuildContext]:
         self.clean_incomplete()
-        created_root = not self.root.exists()
         tmp = self.root / _INCOMPLETE / f"{kind}-{fp[:_FP_DIR_LEN]}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
@@ -266,19 +365,27 @@ class ArtifactStore:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
             _remove_empty(tmp.parent)
-            if created_root:
-                _remove_empty(self.root)  # a failed first build leaves no trace at all
         ctx.artifact = Artifact(self.path_for(kind, fp), manifest)
 
     def _install(self, tmp: Path, final: Path) -> None:
+        """Move a finished build into place; what it replaces is deleted only if it is a readable artifact."""
         final.parent.mkdir(parents=True, exist_ok=True)
-        if final.exists():  # a forced rebuild: move the old one aside, swap, then delete it
-            trash = tmp.with_name(tmp.name + "-old")
-            os.replace(final, trash)
+        if not final.exists():
             os.replace(tmp, final)
-            shutil.rmtree(trash, ignore_errors=True)
+            return
+        try:
+            self._read(final)
+            aside, readable = tmp.with_name(tmp.name + "-old"), True
+        except IntegrityError:  # not ours to delete: keep it where the user can find it
+            stamp = time.strftime("%Y%m%dT%H%M%S")
+            aside, readable = self.root / _DAMAGED / f"{final.parent.name}-{final.name}-{stamp}-{os.getpid()}", False
+            aside.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(final, aside)
+        os.replace(tmp, final)
+        if readable:
+            shutil.rmtree(aside, ignore_errors=True)
         else:
-            os.replace(tmp, final)
+            warn(f"{final} could not be read as an artifact; it was moved to {aside}, not deleted")
 
 
 @dataclass
