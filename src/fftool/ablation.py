@@ -197,8 +197,8 @@ def _preamble(command: str, seconds: float, results: list[dict[str, Any]]) -> st
             f"- command: `{command}`",
             f"- finished: {time.strftime('%Y-%m-%d %H:%M %Z')}; wall time of this run: {seconds / 60:.1f} min "
             "(artifacts reused from the store cost nothing)",
-            f"- machine: {platform.platform()}, {os.cpu_count()} CPU cores, torch {torch.__version__}, "
-            f"device {', '.join(devices)}",
+            f"- machine: {platform.platform()}, {os.cpu_count()} CPU cores, torch {torch.__version__} with "
+            f"{torch.get_num_threads()} threads, device {', '.join(devices)}",
             "- evaluations: " + ", ".join(f"{r['benchmark']}/{r['variant']} = {r['artifact']}" for r in results),
             "",
         ]

@@ -239,6 +239,7 @@ def build(
         "benchmark": benchmark,
         "variant": cfg.variant,
         "device": str(device),
+        "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
         "train_windows": train.windows,
         "train_windows_per_epoch": n_windows,
         "val_windows": len(val_subset),

@@ -223,6 +223,7 @@ def build(
     return summary(columns, cfg, benchmark, predictor.variant, predictor.protocol) | {
         "windows": scenes.windows,
         "device": str(device),
+        "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
         "seconds": round(seconds, 2),
         "agent_windows_per_s": round(len(order) / seconds, 1),
     }

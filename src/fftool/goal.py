@@ -154,6 +154,7 @@ def build(
     return {
         "benchmark": benchmark,
         "device": str(device),
+        "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
         "train_agent_windows": len(train),
         "train_per_epoch": n_train,
         "val_agent_windows": len(val),
