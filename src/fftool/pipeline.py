@@ -371,7 +371,9 @@ def _build(
     store.check_inputs(inputs, {name: STAGES[name].command for name in inputs})
     checked_s = time.perf_counter() - started
     with store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as ctx:
-        ctx.stats = stage.build(cfg, inputs, ctx, runtime, benchmark) | {"input_check_seconds": round(checked_s, 4)}
+        stats = stage.build(cfg, inputs, ctx, runtime, benchmark)
+        build_s = time.perf_counter() - started - checked_s
+        ctx.stats = stats | {"input_check_seconds": round(checked_s, 4), "build_seconds": round(build_s, 3)}
     assert ctx.artifact is not None
     log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
     return ctx.artifact
