@@ -157,9 +157,7 @@ def test_check_inputs_refuses_a_changed_input(store: ArtifactStore) -> None:
     artifact = _build(store)
     store.check_inputs({"demo": artifact}, {"demo": "fftool demo"})
     (artifact.path / "data.txt").write_text("hellO")
-    with pytest.raises(
-        IntegrityError, match=r"artifact demo/a{16} .*data.txt: content changed.*`fftool demo --force`"
-    ):
+    with pytest.raises(IntegrityError, match=r"artifact demo/a{16} .*data.txt: content changed.*`fftool demo --force`"):
         store.check_inputs({"demo": artifact}, {"demo": "fftool demo"})
 
 

@@ -9,17 +9,49 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import typer
+from typer.core import TyperGroup
 
 from fftool.errors import FftoolError, UsageError
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+
+class _OneLineUsageErrors(TyperGroup):
+    """Typer's parser errors (bad option values, unknown options) as one `Error:` line, exit 2.
+
+    Typer draws them as a boxed panel that wraps long paths over several lines; fftool promises one
+    line for every failure, whatever raised it.
+    """
+
+    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            code = super().main(*args, standalone_mode=False, **kwargs)
+        except typer.TyperException as exc:  # click's UsageError, BadParameter, NoSuchOption, …
+            if type(exc).__name__ == "NoArgsIsHelpError":
+                exc.show()  # type: ignore[attr-defined]
+                sys.exit(0)
+            context = getattr(exc, "ctx", None)
+            hint = f" (see `{context.command_path} --help`)" if context is not None else ""
+            _print_error(" ".join(exc.format_message().split()) + hint)
+            code = exc.exit_code
+        except typer.Exit as exc:
+            code = exc.exit_code
+        except typer.Abort:
+            _print_error("aborted")
+            code = 1
+        sys.exit(code if isinstance(code, int) else 0)
+
+
 app = typer.Typer(
+    cls=_OneLineUsageErrors,
     name="fftool",
     help="ForceFormer pedestrian-trajectory prediction, reproducible: one command per pipeline stage.\n\n"
     "Example: fftool ingest --raw ../shared/data/eth_ucy/raw",
@@ -79,10 +111,14 @@ def _boundary(func: F) -> F:
 
 
 def _fail(message: str, code: int) -> None:
+    _print_error(message)
+    raise typer.Exit(code)
+
+
+def _print_error(message: str) -> None:
     from fftool.ui import err_console
 
     err_console.print(f"Error: {message}", markup=False, soft_wrap=True, highlight=False)
-    raise typer.Exit(code)
 
 
 def _store(root: Path | None) -> Any:

@@ -35,7 +35,7 @@ MANIFEST = "manifest.json"
 _INCOMPLETE = ".incomplete"
 _SCRATCH = ".scratch"  # survives failed builds: resumable training checkpoints live here
 _LOCKS = ".locks"
-_DAMAGED = ".damaged"  # unreadable folders a forced rebuild had to replace: kept for the user to inspect
+_DAMAGED = ".damaged"  # unreadable folders a forced rebuild replaced, damaged checkpoints: kept for the user
 _KIND = re.compile(r"[a-z][a-z0-9_]*")
 _FP_DIR_LEN = 16
 _FP_DIR = re.compile(rf"[0-9a-f]{{{_FP_DIR_LEN}}}")  # artifact folders; anything else (reports) is not one
@@ -360,12 +360,20 @@ class ArtifactStore:
             )
             (tmp / MANIFEST).write_text(manifest.to_json())
             self._install(tmp, self.path_for(kind, fp))
+            self._keep_damaged(ctx.scratch)
             shutil.rmtree(ctx.scratch, ignore_errors=True)
             _remove_empty(ctx.scratch.parent)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
             _remove_empty(tmp.parent)
         ctx.artifact = Artifact(self.path_for(kind, fp), manifest)
+
+    def _keep_damaged(self, scratch: Path) -> None:
+        """Move checkpoints a training set aside as damaged (`*.damaged-*`) out of the scratch folder."""
+        for damaged in sorted(scratch.glob("*.damaged-*")):
+            aside = self.root / _DAMAGED / f"{scratch.name}-{damaged.name}"
+            aside.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(damaged, aside)
 
     def _install(self, tmp: Path, final: Path) -> None:
         """Move a finished build into place; what it replaces is deleted only if it is a readable artifact."""

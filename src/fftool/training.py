@@ -197,7 +197,10 @@ def _set_aside(path: Path, problem: str) -> Progress:
     """Rename a damaged checkpoint out of the way (kept for inspection) and start from the first epoch."""
     aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}")
     os.replace(path, aside)
-    warn(f"{path}: damaged resume checkpoint, {problem}; kept as {aside.name}, training starts from epoch 1")
+    warn(
+        f"{path}: damaged resume checkpoint, {problem}; set aside as {aside.name} (moved to the artifact root's "
+        ".damaged/ once the artifact is built), training starts from epoch 1"
+    )
     return Progress()
 
 

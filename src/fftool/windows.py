@@ -18,6 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fftool.config import WindowsConfig
+from fftool.errors import FftoolError
 from fftool.scenes import BENCHMARKS, LEAVE_ONE_OUT, PARTS
 from fftool.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE, WINDOWS_SCHEMA, agent_windows_schema
 from fftool.store import Artifact
@@ -157,6 +158,12 @@ def build(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
                     "frames": sum(sequences[m].frames for m in members),
                 }
             )
+    if not any(row["agent_windows"] for row in summary):
+        raise FftoolError(
+            f"windows of obs_len + pred_len = {window_len} steps: no pedestrian of any recording is present for "
+            f"{window_len} consecutive steps, so there is nothing to train or evaluate on; lower "
+            "windows.obs_len / windows.pred_len"
+        )
     return {"window_len": window_len, "obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "summary": summary}
 
 
