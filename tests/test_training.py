@@ -1,7 +1,9 @@
-"""Checkpoints: atomic per-process writes, damaged resume files set aside, damaged model files refused."""
+"""The shared epoch loop (resumes to the same weights) and checkpoints: atomic per-process writes, damaged resume
+files set aside, damaged model files refused."""
 
 from __future__ import annotations
 
+import csv
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -11,7 +13,8 @@ import torch
 
 from fftool import training
 from fftool.errors import IntegrityError
-from fftool.training import Progress, model_file, resume, save_checkpoint, save_progress
+from fftool.schema import TENSORBOARD_DIR
+from fftool.training import Progress, fit, model_file, resume, save_checkpoint, save_progress
 
 
 def _stateful(width: int = 3) -> dict:
@@ -184,3 +187,84 @@ def test_a_valid_model_file_loads_and_other_errors_pass_through(tmp_path: Path) 
         _ = 1 / 0
     with pytest.raises(FileNotFoundError):
         model_file(tmp_path / "missing.pt", torch.device("cpu"), "fftool train-x --force").__enter__()
+
+
+def _fit(
+    tmp_path: Path,
+    name: str,
+    epochs: int,
+    on_progress: Callable[[str, int, int], None] | None = None,
+    rows: list[dict] | None = None,
+) -> tuple[Progress, dict]:
+    """A tiny regression trained by `fit`: dropout draws from torch's global generator, each epoch's batch
+    order from (seed, epoch); a column that adds up over epochs. Returns the progress and the final weights."""
+    torch.manual_seed(0)
+    x = torch.randn(32, 3)
+    y = x.sum(-1, keepdim=True)
+    model = torch.nn.Sequential(torch.nn.Linear(3, 8), torch.nn.Dropout(0.5), torch.nn.Linear(8, 1))
+    optimizer = torch.optim.Adam(model.parameters(), lr=0.01)
+
+    def train_epoch(epoch: int, tick: Callable[[int, int], None], previous: dict | None) -> dict:
+        assert model.training
+        order = torch.randperm(32, generator=training.generator(training.epoch_seed(7, epoch), torch.device("cpu")))
+        total = 0.0
+        for b in range(4):
+            index = order[b * 8 : (b + 1) * 8]
+            loss = ((model(x[index]) - y[index]) ** 2).mean()
+            training.optimizer_step(model, optimizer, loss, 0.01, 1.0)
+            total += loss.item() / 4
+            tick(b + 1, 4)
+        return {"train_loss": total, "batches_seen": (previous["batches_seen"] if previous else 0) + 4}
+
+    def validate() -> dict[str, float]:
+        model.eval()
+        with torch.no_grad():
+            return {"val_mse": float(((model(x) - y) ** 2).mean())}
+
+    out = tmp_path / name
+    out.mkdir()
+    progress = fit(
+        model, optimizer, epochs=epochs, seed=7, train_epoch=train_epoch, validate=validate, best_by="val_mse",
+        scratch=tmp_path / "scratch", out_dir=out, log_name="log.csv", device=torch.device("cpu"),
+        on_progress=on_progress, on_epoch=None if rows is None else rows.append,
+    )  # fmt: skip
+    return progress, model.state_dict()
+
+
+def _timeless(log: list[dict]) -> list[dict]:
+    return [{k: v for k, v in row.items() if k != "seconds"} for row in log]
+
+
+def test_the_loop_logs_every_epoch_and_keeps_the_best_weights(tmp_path: Path) -> None:
+    rows: list[dict] = []
+    progress, _ = _fit(tmp_path, "run", 3, rows=rows)
+    assert rows == progress.log
+    assert [list(row) for row in rows] == [["epoch", "seconds", "train_loss", "batches_seen", "val_mse"]] * 3
+    assert [row["batches_seen"] for row in rows] == [4, 8, 12]
+    best = min(rows, key=lambda row: row["val_mse"])
+    assert (progress.best_epoch, progress.best_metric) == (best["epoch"], best["val_mse"])
+    with open(tmp_path / "run" / "log.csv") as handle:
+        logged = list(csv.DictReader(handle))
+    assert [float(row["val_mse"]) for row in logged] == [row["val_mse"] for row in rows]
+    assert (tmp_path / "run" / TENSORBOARD_DIR).is_dir()
+    assert torch.load(tmp_path / "scratch" / "last.pt", weights_only=True)["epoch"] == 2
+
+
+def test_an_interrupted_loop_resumes_to_the_same_weights_and_log(tmp_path: Path) -> None:
+    reference, weights = _fit(tmp_path, "reference", 3)
+    (tmp_path / "scratch" / "last.pt").unlink()
+    phases: list[str] = []
+
+    def interrupt(phase: str, done: int, total: int) -> None:
+        phases.append(phase)
+        if phase == "epoch 3/3" and done == 2:  # mid-epoch: two of its four steps taken
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _fit(tmp_path, "interrupted", 3, interrupt)
+    assert phases == ["epoch 1/3"] * 4 + ["epoch 2/3"] * 4 + ["epoch 3/3"] * 2
+    resumed, resumed_weights = _fit(tmp_path, "resumed", 3)
+    assert resumed.start_epoch == 2 and _timeless(resumed.log) == _timeless(reference.log)
+    assert all(torch.equal(weights[key], resumed_weights[key]) for key in weights)
+    assert resumed.best_epoch == reference.best_epoch
+    assert all(torch.equal(reference.best_state[key], resumed.best_state[key]) for key in weights)

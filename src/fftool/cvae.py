@@ -16,6 +16,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
@@ -26,20 +27,10 @@ from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.cvaenet import autocast, build_model, sample
 from fftool.metrics import displacement
-from fftool.models.forceformer import ForceFormer, cvae_loss
+from fftool.models.forceformer import ForceFormer, LossParts, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
-from fftool.training import (
-    Curves,
-    generator,
-    lr_factor,
-    make_optimizer,
-    resume,
-    save_checkpoint,
-    save_progress,
-    set_lr,
-    write_csv,
-)
+from fftool.training import epoch_seed, fit, generator, lr_factor, make_optimizer, optimizer_step, save_checkpoint
 from fftool.trajfeatures import Prepared, decoder_features, prepare
 
 NAME: Final = "cvae"
@@ -51,13 +42,13 @@ def epoch_plan(
     train: SceneSet, cfg: CVAEConfig, epoch: int, n_windows: int
 ) -> tuple[list[np.ndarray], np.random.Generator]:
     """The batches of one epoch (seeded by (seed, epoch)) and the generator that goes on to draw agent caps."""
-    rng = np.random.default_rng(cfg.seed * 100_003 + epoch)
+    rng = np.random.default_rng(epoch_seed(cfg.seed, epoch))
     return train.plan(rng.permutation(train.windows)[:n_windows], cfg.batch_windows, cfg.max_agent_pairs, rng), rng
 
 
 def training_loss(
     model: ForceFormer, prepared: Prepared, cfg: CVAEConfig, forces_cfg: ForcesConfig, dt_s: float, gen: torch.Generator
-):
+) -> LossParts:
     """AgentFormer's loss parts for one batch (posterior reconstruction, KL, best-of-train_k)."""
     with autocast(cfg, prepared.past.device):
         tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
@@ -129,6 +120,98 @@ def val_windows(scenes: SceneSet, cfg: CVAEConfig) -> np.ndarray:
     return np.arange(scenes.windows)
 
 
+@dataclass
+class _Trainer:
+    """The CVAE-specific half of `training.fit`: an epoch of batched windows under AgentFormer's loss, with
+    throughput columns, and the validation minADE/minFDE whose minADE picks the best epoch."""
+
+    cfg: CVAEConfig
+    forces_cfg: ForcesConfig
+    model: ForceFormer
+    optimizer: torch.optim.Optimizer
+    train: SceneSet
+    val: SceneSet
+    val_subset: np.ndarray
+    obs_len: int
+    dt_s: float
+    per_epoch: int  # training windows per epoch
+    device: torch.device
+    first_steps: list[int] = field(init=False)  # each epoch's first optimizer step; [-1]: the schedule's budget
+
+    def __post_init__(self) -> None:
+        steps = [len(epoch_plan(self.train, self.cfg, epoch, self.per_epoch)[0]) for epoch in range(self.cfg.epochs)]
+        self.first_steps = [0, *itertools.accumulate(steps)]  # the budget is known up front
+
+    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
+        """One epoch of the (seed, epoch) plan: throughput (totals carried on from `previous`), the last learning
+        rate and the mean loss terms."""
+        cfg, device = self.cfg, self.device
+        tic = time.perf_counter()
+        gen = generator(epoch_seed(cfg.seed, epoch), device)
+        plan, rng = epoch_plan(self.train, cfg, epoch, self.per_epoch)
+        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0}
+        agents = 0
+        for step, members in enumerate(plan):
+            batch = self.train.batch(members, cfg.max_agents, rng)
+            prepared = prepare(batch.to(device), cfg.variant, self.obs_len, rotate=cfg.rotate, generator=gen)
+            parts = training_loss(self.model, prepared, cfg, self.forces_cfg, self.dt_s, gen)
+            factor = lr_factor(
+                cfg.schedule,
+                self.first_steps[epoch] + step,
+                self.first_steps[-1],
+                cfg.warmup_fraction,
+                epoch,
+                cfg.decay_every,
+                cfg.decay_gamma,
+            )
+            optimizer_step(self.model, self.optimizer, parts.total, cfg.lr * factor, cfg.grad_clip)
+            agents += int(prepared.agent_mask.sum())
+            for name, value in zip(sums, parts):
+                sums[name] += value.item() / len(plan)
+            tick(step + 1, len(plan))
+        train_s = time.perf_counter() - tic
+        seen = previous or {"agent_windows_seen": 0, "train_seconds": 0.0}
+        return {
+            "train_seconds": round(float(seen["train_seconds"]) + train_s, 3),
+            "agent_windows_seen": int(seen["agent_windows_seen"]) + agents,
+            "agent_windows_per_s": round(agents / train_s, 2),
+            "lr": self.optimizer.param_groups[0]["lr"],
+            **{f"train_{name}": value for name, value in sums.items()},
+        }
+
+    def validate(self) -> dict[str, float]:
+        """minADE_K and minFDE_K of the fixed validation subset."""
+        cfg = self.cfg
+        ade, fde = validate(
+            self.model, self.val, self.val_subset, cfg, self.forces_cfg, self.dt_s, self.obs_len, self.device
+        )
+        return {f"val_min_ade@{cfg.k}_m": ade, f"val_min_fde@{cfg.k}_m": fde}
+
+
+def _trainer(
+    cfg: CVAEConfig, forces_cfg: ForcesConfig, benchmark: str, windows: Artifact, forces: Artifact, device: torch.device
+) -> _Trainer:
+    """The benchmark's scenes with their forces, and a fresh model seeded by the run's seed."""
+    train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride)
+    val = load_scene_set(windows, forces, benchmark, "val")
+    val_subset = val_windows(val, cfg)
+    torch.manual_seed(cfg.seed)
+    model = build_model(cfg).to(device)
+    return _Trainer(
+        cfg=cfg,
+        forces_cfg=forces_cfg,
+        model=model,
+        optimizer=make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay),
+        train=train,
+        val=val,
+        val_subset=val_subset,
+        obs_len=int(windows.manifest.stats["obs_len"]),
+        dt_s=float(forces.manifest.stats["dt_s"]),  # the time step the stored forces were computed with
+        per_epoch=min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows,
+        device=device,
+    )
+
+
 def build(
     cfg: CVAEConfig,
     forces_cfg: ForcesConfig,
@@ -149,79 +232,23 @@ def build(
         out_dir: the build folder. scratch: the resumable checkpoint's folder.
         device: torch device. on_progress: (phase, done, total) per batch. on_epoch: each log row.
     """
-    obs_len = int(windows.manifest.stats["obs_len"])
-    dt_s = float(forces.manifest.stats["dt_s"])  # the time step the stored forces were computed with
-    train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride)
-    val = load_scene_set(windows, forces, benchmark, "val")
-    val_subset = val_windows(val, cfg)
-
-    torch.manual_seed(cfg.seed)
-    model = build_model(cfg).to(device)
-    optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
-    stateful = {"model": model, "optimizer": optimizer}
-    progress = resume(scratch / "last.pt", device, stateful)
-    seen = progress.log[-1] if progress.log else {"agent_windows_seen": 0, "train_seconds": 0.0}
-    seen_agents, seen_seconds = int(seen["agent_windows_seen"]), float(seen["train_seconds"])
-    curves = Curves(scratch, progress.start_epoch)
-
-    n_windows = min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows
-    steps_per_epoch = [len(epoch_plan(train, cfg, epoch, n_windows)[0]) for epoch in range(cfg.epochs)]
-    first_steps = [0, *itertools.accumulate(steps_per_epoch)]  # [-1]: the schedule's budget, known up front
+    trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
     started = time.perf_counter()
-    for epoch in range(progress.start_epoch, cfg.epochs):
-        model.train()
-        tic = time.perf_counter()
-        torch.manual_seed(cfg.seed * 100_003 + epoch)  # dropout and sampling noise of this epoch
-        gen = generator(cfg.seed * 100_003 + epoch, device)
-        plan, rng = epoch_plan(train, cfg, epoch, n_windows)
-        steps = len(plan)
-        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0}
-        agents = 0
-        for step, members in enumerate(plan):
-            batch = train.batch(members, cfg.max_agents, rng)
-            prepared = prepare(batch.to(device), cfg.variant, obs_len, rotate=cfg.rotate, generator=gen)
-            parts = training_loss(model, prepared, cfg, forces_cfg, dt_s, gen)
-            optimizer.zero_grad(set_to_none=True)
-            parts.total.backward()
-            if cfg.grad_clip:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-            factor = lr_factor(
-                cfg.schedule,
-                first_steps[epoch] + step,
-                first_steps[-1],
-                cfg.warmup_fraction,
-                epoch,
-                cfg.decay_every,
-                cfg.decay_gamma,
-            )
-            set_lr(optimizer, cfg.lr * factor)
-            optimizer.step()
-            agents += int(prepared.agent_mask.sum())
-            for name, value in zip(("loss", "recon", "kl", "best_of_k"), parts):
-                sums[name] += value.item() / steps
-            if on_progress:
-                on_progress(f"epoch {epoch + 1}/{cfg.epochs}", step + 1, steps)
-        train_s = time.perf_counter() - tic
-        seen_agents, seen_seconds = seen_agents + agents, seen_seconds + train_s
-        ade, fde = validate(model, val, val_subset, cfg, forces_cfg, dt_s, obs_len, device)
-        row = {
-            "epoch": epoch + 1,
-            "seconds": round(time.perf_counter() - tic, 3),
-            "train_seconds": round(seen_seconds, 3),
-            "agent_windows_seen": seen_agents,
-            "agent_windows_per_s": round(agents / train_s, 2),
-            "lr": optimizer.param_groups[0]["lr"],
-            **{f"train_{name}": value for name, value in sums.items()},
-            f"val_min_ade@{cfg.k}_m": ade,
-            f"val_min_fde@{cfg.k}_m": fde,
-        }
-        progress.record(row, ade, model)
-        curves.add(row)
-        if on_epoch:
-            on_epoch(row)
-        save_progress(scratch / "last.pt", progress, epoch, stateful)
-    curves.finish(out_dir)
-
+    progress = fit(
+        trainer.model,
+        trainer.optimizer,
+        epochs=cfg.epochs,
+        seed=cfg.seed,
+        train_epoch=trainer.epoch,
+        validate=trainer.validate,
+        best_by=f"val_min_ade@{cfg.k}_m",
+        scratch=scratch,
+        out_dir=out_dir,
+        log_name=CVAE_LOG_FILE,
+        device=device,
+        on_progress=on_progress,
+        on_epoch=on_epoch,
+    )
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,
         {
@@ -230,23 +257,22 @@ def build(
             "forces_config": forces_cfg.model_dump(mode="json"),
             "benchmark": benchmark,
             "best_epoch": progress.best_epoch,
-            "dt_s": dt_s,
-            "obs_len": obs_len,
+            "dt_s": trainer.dt_s,
+            "obs_len": trainer.obs_len,
         },
     )
-    write_csv(out_dir / CVAE_LOG_FILE, progress.log)
     return {
         "benchmark": benchmark,
         "variant": cfg.variant,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
-        "train_windows": train.windows,
-        "train_windows_per_epoch": n_windows,
-        "val_windows": len(val_subset),
+        "train_windows": trainer.train.windows,
+        "train_windows_per_epoch": trainer.per_epoch,
+        "val_windows": len(trainer.val_subset),
         "best_epoch": progress.best_epoch,
         f"best_val_min_ade@{cfg.k}_m": progress.best_metric,
         "resumed_from_epoch": progress.start_epoch,
         "seconds_this_run": time.perf_counter() - started,
-        "parameters": sum(p.numel() for p in model.parameters()),
+        "parameters": sum(p.numel() for p in trainer.model.parameters()),
         "log": progress.log,
     }

@@ -11,34 +11,131 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 import torch
 
-from fftool.batches import load_agent_windows, load_scene_maps
+from fftool.batches import AgentWindows, SceneMaps, load_agent_windows, load_scene_maps
 from fftool.config import GoalConfig, GoalsConfig
 from fftool.goalnet import build_model, evaluate, goal_inputs, goal_loss, input_channels
 from fftool.heatmaps import world_to_cells
+from fftool.models import GoalUNet
 from fftool.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
 from fftool.store import Artifact
 from fftool.training import (
-    Curves,
+    epoch_seed,
+    fit,
     generator,
     lr_factor,
     make_optimizer,
-    resume,
+    optimizer_step,
     save_checkpoint,
-    save_progress,
     seed_all,
-    set_lr,
-    write_csv,
 )
 
 NAME: Final = "goal"
 VERSION: Final = 1
 INPUTS: Final = ("windows", "maps")
+
+
+@dataclass
+class _Trainer:
+    """The goal-specific half of `training.fit`: an epoch of augmented crops and BCE+MSE heatmap loss, and
+    the validation goal-FDE@K that picks the best epoch."""
+
+    cfg: GoalConfig
+    goals_cfg: GoalsConfig
+    model: GoalUNet
+    optimizer: torch.optim.Optimizer
+    train_xy: torch.Tensor  # (N, T, 2) on the CPU
+    train_scene: torch.Tensor  # each training window's index into `maps`
+    val: AgentWindows
+    val_scene: torch.Tensor
+    maps: SceneMaps
+    obs_len: int
+    pred_len: int
+    per_epoch: int  # training windows per epoch
+    device: torch.device
+
+    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
+        """One epoch over `per_epoch` windows drawn by (seed, epoch); the mean loss terms. (No column adds up
+        over epochs, so `previous` goes unused.)"""
+        cfg, device = self.cfg, self.device
+        batches = -(-self.per_epoch // cfg.batch_size)
+        gen = generator(epoch_seed(cfg.seed, epoch), torch.device("cpu"))
+        order = torch.randperm(len(self.train_xy), generator=gen)[: self.per_epoch]
+        sums = {"loss": 0.0, "bce": 0.0, "mse": 0.0}
+        for b in range(batches):
+            index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
+            xy = self.train_xy[index].to(device)
+            angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
+            mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
+            if not cfg.augment or cfg.align_heading:
+                angle = torch.zeros_like(angle)
+            if not cfg.augment:
+                mirror = torch.zeros_like(mirror)
+            past, scene = xy[:, : self.obs_len], self.train_scene[index].to(device)
+            x, center, R = goal_inputs(past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len)
+            goal_cells = world_to_cells(xy[:, -1:], center, R, cfg.resolution_m, cfg.crop_cells)[:, 0]
+            loss, bce, mse = goal_loss(self.model(x), goal_cells, cfg)
+            factor = lr_factor(cfg.schedule, epoch * batches + b, cfg.epochs * batches, cfg.warmup_fraction)
+            optimizer_step(self.model, self.optimizer, loss, cfg.lr * factor, cfg.grad_clip)
+            for name, value in (("loss", loss), ("bce", bce), ("mse", mse)):
+                sums[name] += value.item() / batches
+            tick(b + 1, batches)
+        return {"train_loss": sums["loss"], "train_bce": sums["bce"], "train_mse_cells2": sums["mse"]}
+
+    def validate(self) -> dict[str, float]:
+        """Goal-FDE@K and FDE@1 of the validation windows, with the run's fixed sampling seed."""
+        cfg, k = self.cfg, self.goals_cfg.k
+        fde_k, fde_1 = evaluate(
+            self.model,
+            self.val,
+            self.val_scene,
+            self.maps,
+            cfg,
+            self.goals_cfg,
+            self.device,
+            cfg.seed,
+            self.obs_len,
+            self.pred_len,
+        )
+        return {f"val_goal_fde@{k}_m": fde_k, "val_goal_fde@1_m": fde_1}
+
+
+def _trainer(
+    cfg: GoalConfig, goals_cfg: GoalsConfig, benchmark: str, windows: Artifact, maps: Artifact, device: torch.device
+) -> _Trainer:
+    """The benchmark's windows and maps, and a fresh model seeded by the run's seed."""
+    seed_all(cfg.seed)
+    obs_len = int(windows.manifest.stats["obs_len"])
+    pred_len = int(windows.manifest.stats["pred_len"])
+    train = load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
+    val = load_agent_windows(windows, benchmark, "val")
+    if cfg.val_max and len(val) > cfg.val_max:
+        keep = np.sort(np.random.default_rng(cfg.seed).choice(len(val), cfg.val_max, replace=False))
+        val = val.subset(keep)
+    scene_maps = load_scene_maps(maps).to(device)
+    model = build_model(cfg, input_channels(cfg, obs_len, scene_maps.channels)).to(device)
+    optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
+    return _Trainer(
+        cfg=cfg,
+        goals_cfg=goals_cfg,
+        model=model,
+        optimizer=optimizer,
+        train_xy=torch.as_tensor(train.xy, dtype=torch.float32),
+        train_scene=scene_maps.index_of_sources(train.source),
+        val=val,
+        val_scene=scene_maps.index_of_sources(val.source),
+        maps=scene_maps,
+        obs_len=obs_len,
+        pred_len=pred_len,
+        per_epoch=min(len(train), cfg.max_train) if cfg.max_train else len(train),
+        device=device,
+    )
 
 
 def build(
@@ -63,101 +160,40 @@ def build(
         device: torch device. on_progress: called with (phase, done, total) after every batch.
         on_epoch: called with each epoch's log row (a line per epoch even where no live bar shows).
     """
-    seed_all(cfg.seed)
-    obs_len = int(windows.manifest.stats["obs_len"])
-    pred_len = int(windows.manifest.stats["pred_len"])
-    train = load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
-    val = load_agent_windows(windows, benchmark, "val")
-    if cfg.val_max and len(val) > cfg.val_max:
-        keep = np.sort(np.random.default_rng(cfg.seed).choice(len(val), cfg.val_max, replace=False))
-        val = val.subset(keep)
-    scene_maps = load_scene_maps(maps).to(device)
-    train_scene, val_scene = scene_maps.index_of_sources(train.source), scene_maps.index_of_sources(val.source)
-    train_xy = torch.as_tensor(train.xy, dtype=torch.float32)
-
-    in_channels = input_channels(cfg, obs_len, scene_maps.channels)
-    model = build_model(cfg, in_channels).to(device)
-    n_train = min(len(train), cfg.max_train) if cfg.max_train else len(train)
-    batches = -(-n_train // cfg.batch_size)
-    optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
-    stateful = {"model": model, "optimizer": optimizer}
-    progress = resume(scratch / "last.pt", device, stateful)
-    curves = Curves(scratch, progress.start_epoch)
-
+    trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
     started = time.perf_counter()
-    for epoch in range(progress.start_epoch, cfg.epochs):
-        model.train()
-        tic = time.perf_counter()
-        gen = generator(cfg.seed * 100_003 + epoch, torch.device("cpu"))
-        order = torch.randperm(len(train), generator=gen)[:n_train]
-        sums = {"loss": 0.0, "bce": 0.0, "mse": 0.0}
-        for b in range(batches):
-            index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
-            xy = train_xy[index].to(device)
-            angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
-            mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
-            if not cfg.augment or cfg.align_heading:
-                angle = torch.zeros_like(angle)
-            if not cfg.augment:
-                mirror = torch.zeros_like(mirror)
-            x, center, R = goal_inputs(
-                xy[:, :obs_len],
-                train_scene[index].to(device),
-                scene_maps,
-                cfg,
-                angle.to(device),
-                mirror.to(device),
-                pred_len,
-            )
-            goal_cells = world_to_cells(xy[:, -1:], center, R, cfg.resolution_m, cfg.crop_cells)[:, 0]
-            loss, bce, mse = goal_loss(model(x), goal_cells, cfg)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-            set_lr(
-                optimizer,
-                cfg.lr * lr_factor(cfg.schedule, epoch * batches + b, cfg.epochs * batches, cfg.warmup_fraction),
-            )
-            optimizer.step()
-            for name, value in (("loss", loss), ("bce", bce), ("mse", mse)):
-                sums[name] += value.item() / batches
-            if on_progress:
-                on_progress(f"epoch {epoch + 1}/{cfg.epochs}", b + 1, batches)
-        fde_k, fde_1 = evaluate(model, val, val_scene, scene_maps, cfg, goals_cfg, device, cfg.seed, obs_len, pred_len)
-        row = {
-            "epoch": epoch + 1,
-            "seconds": round(time.perf_counter() - tic, 3),
-            "train_loss": sums["loss"],
-            "train_bce": sums["bce"],
-            "train_mse_cells2": sums["mse"],
-            f"val_goal_fde@{goals_cfg.k}_m": fde_k,
-            "val_goal_fde@1_m": fde_1,
-        }
-        progress.record(row, fde_k, model)
-        curves.add(row)
-        if on_epoch:
-            on_epoch(row)
-        save_progress(scratch / "last.pt", progress, epoch, stateful)
-    curves.finish(out_dir)
-
+    progress = fit(
+        trainer.model,
+        trainer.optimizer,
+        epochs=cfg.epochs,
+        seed=cfg.seed,
+        train_epoch=trainer.epoch,
+        validate=trainer.validate,
+        best_by=f"val_goal_fde@{goals_cfg.k}_m",
+        scratch=scratch,
+        out_dir=out_dir,
+        log_name=GOAL_LOG_FILE,
+        device=device,
+        on_progress=on_progress,
+        on_epoch=on_epoch,
+    )
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,
         {
             "state_dict": progress.best_state,
-            "in_channels": in_channels,
+            "in_channels": input_channels(cfg, trainer.obs_len, trainer.maps.channels),
             "config": cfg.model_dump(mode="json"),
             "benchmark": benchmark,
             "best_epoch": progress.best_epoch,
         },
     )
-    write_csv(out_dir / GOAL_LOG_FILE, progress.log)
     return {
         "benchmark": benchmark,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
-        "train_agent_windows": len(train),
-        "train_per_epoch": n_train,
-        "val_agent_windows": len(val),
+        "train_agent_windows": len(trainer.train_xy),
+        "train_per_epoch": trainer.per_epoch,
+        "val_agent_windows": len(trainer.val),
         "best_epoch": progress.best_epoch,
         f"best_val_goal_fde@{goals_cfg.k}_m": progress.best_metric,
         "epochs": cfg.epochs,

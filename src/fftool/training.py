@@ -1,4 +1,5 @@
-"""Plain helpers shared by the training stages: seeding, devices, resumable checkpoints, model files, CSV logs."""
+"""What the training stages share: the resumable epoch loop (`fit`), seeding, optimizer steps and learning-rate
+schedules, checkpoints, model files, CSV and TensorBoard logs."""
 
 from __future__ import annotations
 
@@ -9,9 +10,10 @@ import os
 import random
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +36,12 @@ def seed_all(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def epoch_seed(seed: int, epoch: int) -> int:
+    """The seed of epoch `epoch` (0-based) of a run seeded `seed`. Every epoch draws from its own seed, so
+    a run resumed after its last finished epoch draws exactly what the uninterrupted run drew."""
+    return seed * 100_003 + epoch
+
+
 def generator(seed: int, device: torch.device) -> torch.Generator:
     """A torch generator on `device`, so sampling is reproducible on CPU and CUDA alike."""
     gen = torch.Generator(device=device)
@@ -51,6 +59,18 @@ def make_optimizer(model: torch.nn.Module, name: str, lr: float, weight_decay: f
 def set_lr(optimizer: torch.optim.Optimizer, lr: float) -> None:
     for group in optimizer.param_groups:
         group["lr"] = lr
+
+
+def optimizer_step(
+    model: torch.nn.Module, optimizer: torch.optim.Optimizer, loss: torch.Tensor, lr: float, grad_clip: float
+) -> None:
+    """One update at rate `lr` with the gradients of `loss`, their global norm clipped to `grad_clip` (0: not)."""
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if grad_clip:
+        torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
+    set_lr(optimizer, lr)
+    optimizer.step()
 
 
 def lr_factor(
@@ -228,3 +248,61 @@ class Curves:
     def finish(self, out_dir: Path) -> None:
         self.writer.close()
         shutil.copytree(self.folder, out_dir / TENSORBOARD_DIR)
+
+
+# One training epoch: (epoch (0-based), tick(done, total) after every batch, the previous epoch's log row or
+# None) -> the epoch's training columns of the log, in order. The row lets a column add up over a resumed run.
+TrainEpoch = Callable[[int, Callable[[int, int], None], dict[str, Any] | None], dict[str, Any]]
+
+
+def _quiet(done: int, total: int) -> None:
+    """The tick of a run nobody follows batch by batch."""
+
+
+def fit(
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    *,
+    epochs: int,
+    seed: int,
+    train_epoch: TrainEpoch,
+    validate: Callable[[], dict[str, float]],
+    best_by: str,
+    scratch: Path,
+    out_dir: Path,
+    log_name: str,
+    device: torch.device,
+    on_progress: Callable[[str, int, int], None] | None = None,
+    on_epoch: Callable[[dict[str, Any]], None] | None = None,
+) -> Progress:
+    """Train for `epochs` epochs, validating after each, resuming from the scratch checkpoint; returns the log
+    and the best weights (lowest `validate()[best_by]`).
+
+    The stages differ only in their data, model, loss and metrics, which they pass in as `train_epoch` and
+    `validate`; this loop owns what they share. Each epoch reseeds torch's global generator with `epoch_seed`
+    and ends with a checkpoint of `model`, `optimizer` and the progress, so a run killed mid-epoch and
+    started again redoes that epoch and ends with the same weights as an uninterrupted run. Log rows are
+    (epoch, seconds, training columns, validation metrics); they go to `on_epoch`, TensorBoard (live under
+    `scratch`, copied into `out_dir` at the end) and `out_dir / log_name`. `on_progress` gets
+    ("epoch e/E", done, total) from each tick of `train_epoch`.
+    """
+    stateful = {"model": model, "optimizer": optimizer}
+    checkpoint = scratch / "last.pt"
+    progress = resume(checkpoint, device, stateful)
+    curves = Curves(scratch, progress.start_epoch)
+    for epoch in range(progress.start_epoch, epochs):
+        model.train()
+        tic = time.perf_counter()
+        torch.manual_seed(epoch_seed(seed, epoch))  # dropout and whatever else draws from the global generator
+        tick = partial(on_progress, f"epoch {epoch + 1}/{epochs}") if on_progress else _quiet
+        trained = train_epoch(epoch, tick, progress.log[-1] if progress.log else None)
+        metrics = validate()
+        row = {"epoch": epoch + 1, "seconds": round(time.perf_counter() - tic, 3), **trained, **metrics}
+        progress.record(row, metrics[best_by], model)
+        curves.add(row)
+        if on_epoch:
+            on_epoch(row)
+        save_progress(checkpoint, progress, epoch, stateful)
+    curves.finish(out_dir)
+    write_csv(out_dir / log_name, progress.log)
+    return progress
