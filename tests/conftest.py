@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +74,3 @@ def snapshot(root: Path) -> dict[str, bytes]:
         return {}
     files = (p for p in sorted(root.rglob("*")) if p.is_file() and ".locks" not in p.relative_to(root).parts)
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in files}
-
-
-SnapshotFn = Callable[[Path], dict[str, bytes]]

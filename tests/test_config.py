@@ -9,8 +9,10 @@ import pytest
 from typer.testing import CliRunner
 
 from fftool.cli import app
-from fftool.config import PipelineConfig, load_config
+from fftool.config import PipelineConfig, load_config, predictor_config
 from fftool.errors import ConfigError
+from fftool.published import FORCEFORMER_VARIANTS, PAPER_NAMES, PREDICTORS
+from fftool.scenes import BENCHMARK_TEST_SOURCES, BENCHMARKS
 
 FLOAT_KEYS = [
     f"{section}.{name}"
@@ -101,3 +103,13 @@ def test_the_cli_reports_a_bad_value_as_a_usage_error(tmp_path: Path) -> None:
     unreadable = runner.invoke(app, ["train-goal", *root, "-c", str(binary)])
     assert unreadable.exit_code == 2 and "not a UTF-8 TOML file" in unreadable.output
     assert not (tmp_path / "artifacts").exists()
+
+
+def test_the_name_lists_are_defined_once() -> None:
+    # Literal types are the source; the mappings keyed by those names must cover exactly them.
+    assert tuple(BENCHMARK_TEST_SOURCES) == BENCHMARKS == PipelineConfig().report.benchmarks
+    assert tuple(PAPER_NAMES) == PREDICTORS and PipelineConfig().report.variants == FORCEFORMER_VARIANTS
+    with pytest.raises(ConfigError, match=r"cvae\.variant"):
+        load_config(overrides=["cvae.variant=teleport"])
+    assert predictor_config(PipelineConfig(), "dr").cvae.variant == "dr"
+    assert predictor_config(PipelineConfig(), "cv").evaluate.predictor == "cv"

@@ -13,10 +13,14 @@ from fftool.models.forceformer import (
     _token_masks,
     best_of_k,
     cvae_loss,
-    position_features,
 )
 
 SMALL = {"d_model": 32, "n_heads": 4, "d_ff": 64, "dropout": 0.0, "n_layers": 2, "z_dim": 8}
+
+
+def _newest_position(positions: torch.Tensor, step: int) -> torch.Tensor:
+    """The decoder's step features here: the newest position, as AgentFormer feeds."""
+    return positions[:, :, -1]
 
 
 def _model(seed: int = 0) -> ForceFormer:
@@ -28,7 +32,7 @@ def _run(model: ForceFormer, past: torch.Tensor, future: torch.Tensor, mask: tor
     context, agent_context = model.encode_past(past, mask)
     q = model.posterior(future, context, mask)
     p = model.prior(agent_context)
-    out = model.decode(z, past[:, :, -1, :2], context, mask, 12, position_features)
+    out = model.decode(z, past[:, :, -1, :2], context, mask, 12, _newest_position)
     return q, p, out
 
 
@@ -162,11 +166,11 @@ def test_training_step_runs_forward_and_backward() -> None:
     mask = torch.tensor([[True, True, True, False], [True, False, False, False]])
     context, agent_context = model.encode_past(past, mask)
     q, p = model.posterior(future, context, mask), model.prior(agent_context)
-    recon = model.decode(q.sample(g), past[:, :, -1, :2], context, mask, 12, position_features)
+    recon = model.decode(q.sample(g), past[:, :, -1, :2], context, mask, 12, _newest_position)
     k = 3
     rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
     z = Gaussian(rep(p.mu), rep(p.logvar)).sample(g)
-    samples = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, position_features, repeat=k)
+    samples = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, _newest_position, repeat=k)
     parts = cvae_loss(recon, future[..., :2], q, p, samples.view(2, k, 4, 12, 2), mask, 2.0)
     parts.total.backward()
     assert recon.shape == (2, 4, 12, 2) and torch.isfinite(parts.total)
@@ -180,7 +184,7 @@ def _decode_by_recomputation(model: ForceFormer, z, last_pos, context, mask, ste
     Tp = context.shape[1] // A
     positions, inputs, outputs = last_pos[:, :, None], [], []
     for step in range(steps):
-        inputs.append(torch.cat([position_features(positions, step), z], -1))
+        inputs.append(torch.cat([_newest_position(positions, step), z], -1))
         x = model.decoder_embed(torch.stack(inputs, 2))
         masks = (_token_masks(mask, step + 1, step + 1, causal=True), _token_masks(mask, step + 1, Tp, causal=False))
         for layer in model.decoder:
@@ -198,7 +202,7 @@ def test_cached_decoding_equals_recomputing_the_prefix() -> None:
     context, _ = model.encode_past(past, mask)
     z = torch.randn(2, 3, 8, generator=g)
     with torch.no_grad():
-        fast = model.decode(z, past[:, :, -1, :2], context, mask, 12, position_features)
+        fast = model.decode(z, past[:, :, -1, :2], context, mask, 12, _newest_position)
         slow = _decode_by_recomputation(model, z, past[:, :, -1, :2], context, mask, 12)
     torch.testing.assert_close(fast[mask], slow[mask], atol=1e-5, rtol=1e-5)
 
@@ -213,8 +217,8 @@ def test_sharing_the_context_between_samples_equals_repeating_it() -> None:
     rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
     z = torch.randn(2 * k, 3, 8, generator=g)
     with torch.no_grad():
-        shared = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, position_features, repeat=k)
-        copied = model.decode(z, rep(past[:, :, -1, :2]), rep(context), rep(mask), 12, position_features)
+        shared = model.decode(z, rep(past[:, :, -1, :2]), context, rep(mask), 12, _newest_position, repeat=k)
+        copied = model.decode(z, rep(past[:, :, -1, :2]), rep(context), rep(mask), 12, _newest_position)
     torch.testing.assert_close(shared[rep(mask)], copied[rep(mask)], atol=1e-5, rtol=1e-5)
 
 
@@ -236,7 +240,7 @@ def test_output_types_read_the_head_as_documented() -> None:
         torch.nn.init.zeros_(model.out.weight)
         torch.nn.init.constant_(model.out.bias, 0.5)
         context, _ = model.encode_past(past, mask)
-        out = model.decode(z, last, context, mask, 12, position_features, last_step=step)
+        out = model.decode(z, last, context, mask, 12, _newest_position, last_step=step)
         torch.testing.assert_close(out, positions.expand_as(out), msg=output)
 
 

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from fftool import pipeline
 from fftool.cli import app
 from fftool.config import ForcesConfig, load_config
-from fftool.explain import world_to_pixel
+from fftool.maps import apply_homography, read_homography
 from fftool.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, FORCES_INDEX_FILE, WINDOWS_FILE
 from fftool.socialforce import finite_difference_velocity, group_ids, social_forces, window_forces
 from fftool.store import ArtifactStore
@@ -148,10 +148,10 @@ def test_cli_forces_and_explain_without_scene_image(tmp_path: Path, raw_tree: Pa
 def test_homography_round_trip_on_the_real_scenes(real_raw: Path) -> None:
     scenes = real_raw.parent / "scenes"
     for scene in ("eth", "hotel", "univ", "zara1", "zara2"):
-        matrix = np.loadtxt(scenes / scene / "world_to_pixel.txt")
+        matrix = read_homography(scenes / scene / "world_to_pixel.txt")
         world = np.random.default_rng(0).uniform(0, 10, (50, 2))
-        pixels = world_to_pixel(matrix, world)
-        back = world_to_pixel(np.linalg.inv(matrix), pixels)
+        pixels = apply_homography(matrix, world)
+        back = apply_homography(np.linalg.inv(matrix), pixels)
         np.testing.assert_allclose(back, world, atol=1e-9)
-    ucy = np.loadtxt(scenes / "zara1" / "world_to_pixel.txt")
-    np.testing.assert_allclose(world_to_pixel(ucy, np.array([[0.0, 0.0]])), [[0.0, 576.0]])  # bottom-left
+    ucy = read_homography(scenes / "zara1" / "world_to_pixel.txt")
+    np.testing.assert_allclose(apply_homography(ucy, np.array([[0.0, 0.0]])), [[0.0, 576.0]])  # bottom-left

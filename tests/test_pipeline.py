@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from fftool import pipeline
-from fftool.config import load_config
+from fftool.config import load_config, predictor_config
 from fftool.store import ArtifactStore
 
 
@@ -80,7 +80,7 @@ def test_every_shipped_profile_loads_and_plans_the_whole_dag(profile: Path) -> N
 
     cfg = load_config(profile)
     for predictor in ablation.predictors(cfg, cfg.report.variants):
-        cell = ablation.predictor_config(cfg, predictor)
+        cell = predictor_config(cfg, predictor)
         names = [item.stage.name for item in pipeline.resolve(cell, ["evaluate"], cfg.report.benchmarks[0])]
         assert names[-1] == "evaluate" and names[0] == "tracks"
         assert ("goals" in names) == (predictor in ("goal", "dr", "re"))

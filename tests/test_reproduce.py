@@ -88,6 +88,24 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     np.testing.assert_array_equal(same["collisions"], predictions["collisions"])
     wider = rescore(predictions, data, 20, 50.0)
     assert wider["collisions"].sum() > same["collisions"].sum()
+    command = ["rescore", f"evaluate/{folders['dr']}", "--threshold", "50", "--root", str(root)]
+    rescored = CliRunner().invoke(app, command)
+    assert rescored.exit_code == 0, rescored.output
+    stored_row, new_row = (
+        line.split() for line in rescored.output.splitlines() if line.lstrip().startswith(("stored", "re-scored"))
+    )
+    assert new_row[1:] == [
+        "50",
+        f"{np.mean(wider['min_ade']):.3f}",
+        f"{np.mean(wider['min_fde']):.3f}",
+        str(wider["collisions"].sum()),
+        str(wider["collisions"].sum() // 2),
+        str(wider["joint_collisions"].sum()),
+        str(wider["joint_collisions"].sum() // 2),
+    ]
+    assert stored_row[1] == "0.1" and stored_row[4] == str(manifests["dr"]["nc"]["best_ade"]["ordered"])
+    not_evaluate = CliRunner().invoke(app, ["rescore", "windows", "--threshold", "0.2", "--root", str(root)])
+    assert not_evaluate.exit_code == 1 and "expected 'evaluate'" in not_evaluate.output
 
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0, again.output

@@ -139,7 +139,7 @@ def test_static_pairs_are_antisymmetric_and_decay(x: float, y: float, distance: 
     kwargs = {"v0_m2_s2": 2.1, "sigma_m": 0.3, "step_s": 0.4}
     f = pair_repulsion(r_ab, torch.zeros(2), torch.zeros(2, 2), **kwargs)
     torch.testing.assert_close(f[0, 1], -f[1, 0])
-    np.testing.assert_allclose(ellipse_b(r_ab, torch.zeros(2), torch.zeros(2, 2), 0.4)[0, 1], distance, rtol=1e-9)
+    np.testing.assert_allclose(ellipse_b(r_ab, torch.zeros(2), torch.zeros(2, 2), 0.4).b[0, 1], distance, rtol=1e-9)
     farther = torch.stack([ra, ra + 1.1 * (rb - ra)])
     f_far = pair_repulsion(farther[:, None] - farther[None, :], torch.zeros(2), torch.zeros(2, 2), **kwargs)
     assert torch.linalg.vector_norm(f_far[0, 1]) < torch.linalg.vector_norm(f[0, 1])
@@ -221,7 +221,7 @@ def test_b_v_and_f_match_the_socialforce_package(seed: int) -> None:
     their_f = simulator.f_ab(full)
 
     ours_e, _ = desired_direction(state[:, :2], state[:, 4:6], CFG.goal_min_distance_m)
-    ours_b = ellipse_b(r_ab, speeds, ours_e, 0.4)
+    ours_b = ellipse_b(r_ab, speeds, ours_e, 0.4).b
     ours_f = pair_repulsion(r_ab, speeds, ours_e, v0_m2_s2=2.1, sigma_m=0.3, step_s=0.4)
     off = ~torch.eye(len(state), dtype=torch.bool)
     torch.testing.assert_close(ours_b[off], their_b[off], rtol=0, atol=1e-6)

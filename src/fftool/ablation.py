@@ -19,23 +19,10 @@ from typing import Any
 import torch
 
 from fftool import __version__, pipeline, tables
-from fftool.config import PipelineConfig
+from fftool.config import PipelineConfig, predictor_config
 from fftool.errors import UsageError
 from fftool.published import PREDICTORS
-from fftool.schema import PREDICTIONS_FILE
 from fftool.store import ArtifactStore
-
-
-def predictor_config(cfg: PipelineConfig, predictor: str) -> PipelineConfig:
-    """The configuration whose `evaluate` target scores `predictor` (a CVAE variant or cv)."""
-    if predictor == "cv":
-        return cfg.model_copy(update={"evaluate": cfg.evaluate.model_copy(update={"predictor": "cv"})})
-    return cfg.model_copy(
-        update={
-            "cvae": cfg.cvae.model_copy(update={"variant": predictor}),
-            "evaluate": cfg.evaluate.model_copy(update={"predictor": "cvae"}),
-        }
-    )
 
 
 def predictors(cfg: PipelineConfig, variants: Iterable[str]) -> list[str]:
@@ -68,7 +55,6 @@ def run(
                 artifact.manifest.stats
                 | {
                     "artifact": artifact.id,
-                    "predictions": str(artifact.file(PREDICTIONS_FILE)),
                     "windows": built["windows"].id,
                     "built_now": missing,  # stages this run had to build for the cell
                     "cell_seconds": time.perf_counter() - started,
@@ -77,32 +63,20 @@ def run(
     return results
 
 
-def figures(
-    cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path, windows_per_figure: int = 3
-) -> list[Path]:
-    """The density curves of every benchmark and a qualitative figure per benchmark for a report."""
-    import pandas as pd
-
+def figures(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
+    """A report's figures: the density curves of every predictor, the qualitative panels of all but cv."""
     from fftool import plots
-    from fftool.batches import load_agent_windows
 
-    frames: dict[str, dict[str, pd.DataFrame]] = {}
-    for r in results:
-        frames.setdefault(r["benchmark"], {})[r["variant"]] = pd.read_parquet(r["predictions"])
-    written = [plots.density_curves(frames, out_dir / "density.png")]
     windows_ids = {r["windows"] for r in results}
     if len(windows_ids) != 1:
         raise ValueError(f"the evaluations come from {len(windows_ids)} different windows artifacts")
+    evaluations: dict[str, list[plots.Evaluation]] = {}
+    for r in results:
+        evaluations.setdefault(r["benchmark"], []).append(plots.Evaluation.of(store.resolve(r["artifact"])))
     windows = store.resolve(windows_ids.pop())
-    obs_len = int(windows.manifest.stats["obs_len"])
-    for benchmark, by_predictor in frames.items():
-        k = next(r["k"] for r in results if r["benchmark"] == benchmark)
-        evaluations = [plots.Evaluation(p, k, f) for p, f in by_predictor.items() if p != "cv"]
-        data = load_agent_windows(windows, benchmark, cfg.evaluate.part)
-        chosen = plots.pick_windows(evaluations, windows_per_figure)
-        out = out_dir / f"qualitative_{benchmark}.png"
-        written.append(plots.qualitative(evaluations, data, chosen, Path(cfg.data.scenes_dir), obs_len, False, out))
-    return written
+    return plots.figures(
+        evaluations, windows, cfg.evaluate.part, Path(cfg.data.scenes_dir), out_dir, density_only=("cv",)
+    )
 
 
 def caption(cfg: PipelineConfig, profile: str) -> str:

@@ -1,4 +1,5 @@
-"""Artifact -> array loaders shared by the learning stages (goal, goals, cvae, evaluate) and the plots.
+"""Artifact -> array loaders shared by the learning stages (goal, goals, cvae, evaluate) and the plots, and
+the pair-budget batching they share with the forces stage.
 
 Stages read each other's outputs only through these loaders and `schema.py`, never by import.
 """
@@ -135,6 +136,26 @@ class SceneBatch:
         return self.map(lambda t: t.to(device))
 
 
+def pair_budget_batches(sorted_agents: np.ndarray, max_pairs: int, max_windows: int | None = None) -> list[slice]:
+    """Cut windows sorted by agent count into consecutive runs of at most `max_windows` whose windows ×
+    largest agent count² stays within `max_pairs`: pairwise tensors grow with agents², so this bounds memory.
+
+    A window over the budget on its own still gets a run; a window without agents counts as one.
+    """
+    runs, begin = [], 0
+    while begin < len(sorted_agents):
+        end = begin + 1
+        while (
+            end < len(sorted_agents)
+            and (max_windows is None or end - begin < max_windows)
+            and (end + 1 - begin) * max(int(sorted_agents[end]), 1) ** 2 <= max_pairs
+        ):
+            end += 1
+        runs.append(slice(begin, end))
+        begin = end
+    return runs
+
+
 @dataclass(frozen=True)
 class SceneSet:
     """Every window of one benchmark part with its agents' rows, ready to be cut into padded batches."""
@@ -164,17 +185,7 @@ class SceneSet:
         for start in range(0, len(order), block):
             chunk = order[start : start + block]
             chunk = chunk[np.argsort(counts[chunk], kind="stable")]
-            begin = 0
-            while begin < len(chunk):
-                end = begin + 1
-                while (
-                    end < len(chunk)
-                    and end - begin < batch_windows
-                    and (end + 1 - begin) * counts[chunk[end]] ** 2 <= max_pairs
-                ):
-                    end += 1
-                batches.append(chunk[begin:end])
-                begin = end
+            batches.extend(chunk[run] for run in pair_budget_batches(counts[chunk], max_pairs, batch_windows))
         return [batches[i] for i in rng.permutation(len(batches))]
 
     def batch(self, windows: np.ndarray, max_agents: int = 0, rng: np.random.Generator | None = None) -> SceneBatch:

@@ -12,12 +12,17 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 from typer.core import TyperGroup
 
 from fftool.errors import FftoolError, UsageError
+from fftool.published import FORCEFORMER_VARIANTS, PREDICTORS, VARIANTS
+from fftool.scenes import BENCHMARKS
+
+if TYPE_CHECKING:
+    from fftool.config import PipelineConfig
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -141,11 +146,25 @@ def _run_stages(
 
     `values` are the command's typed options (`{"section.key": value}`), applied after `--set`.
     """
-    from fftool import pipeline
     from fftool.config import load_config
 
+    cfg = load_config(config, list(overrides or []), values)
+    return _build_stages(cfg, targets, root, force, device, benchmark)
+
+
+def _build_stages(
+    cfg: PipelineConfig,
+    targets: list[str],
+    root: Path | None,
+    force: bool,
+    device: str = "auto",
+    benchmark: str | None = None,
+) -> dict[str, Any]:
+    """Build `targets` of a resolved configuration; the stages before them must exist."""
+    from fftool import pipeline
+
     return pipeline.run(
-        load_config(config, list(overrides or []), values),
+        cfg,
         _store(root),
         targets,
         force=targets if force else [],
@@ -203,7 +222,7 @@ def forces(
         typer.Option(
             "--explain",
             metavar="SCENE FRAME",
-            help="Also draw the test window of SCENE (eth, hotel, univ, zara1, zara2) whose last observed "
+            help=f"Also draw the test window of SCENE ({', '.join(BENCHMARKS)}) whose last observed "
             "frame id is FRAME, with its forces, over the scene image.",
         ),
     ] = None,
@@ -256,16 +275,12 @@ def maps(
 
 
 def _check_benchmark(value: str) -> str:
-    from fftool.scenes import BENCHMARKS
-
     if value not in BENCHMARKS:
         raise typer.BadParameter(f"{value!r} is not one of {', '.join(BENCHMARKS)}")
     return value
 
 
 def _check_benchmarks(value: str) -> str:
-    from fftool.scenes import BENCHMARKS
-
     names = BENCHMARKS if value == "all" else tuple(v.strip() for v in value.split(","))
     unknown = [name for name in names if name not in BENCHMARKS]
     if unknown:
@@ -278,7 +293,7 @@ def _check_benchmarks(value: str) -> str:
 BenchmarkOption = Annotated[
     str,
     typer.Option(
-        "--benchmark", "-b", help="Leave-one-out benchmark: eth, hotel, univ, zara1, zara2.", callback=_check_benchmark
+        "--benchmark", "-b", help=f"Leave-one-out benchmark: {', '.join(BENCHMARKS)}.", callback=_check_benchmark
     ),
 ]
 BenchmarksOption = Annotated[
@@ -328,8 +343,8 @@ def sample_goals(
 
 
 def _check_variant(value: str) -> str:
-    if value not in ("baseline", "goal", "dr", "re"):
-        raise typer.BadParameter(f"{value!r} is not one of baseline, goal, dr, re")
+    if value not in VARIANTS:
+        raise typer.BadParameter(f"{value!r} is not one of {', '.join(VARIANTS)}")
     return value
 
 
@@ -362,8 +377,6 @@ def train_cvae(
 
 
 def _check_predictor(value: str) -> str:
-    from fftool.published import PREDICTORS
-
     if value not in PREDICTORS:
         raise typer.BadParameter(f"{value!r} is not one of {', '.join(PREDICTORS)}")
     return value
@@ -379,9 +392,11 @@ def _check_protocol(value: str) -> str:
 
 def _check_variants(value: str) -> str:
     names = tuple(v.strip() for v in value.split(",") if v.strip())
-    unknown = [name for name in names if name not in ("baseline", "goal", "dr", "re")]
+    unknown = [name for name in names if name not in VARIANTS]
     if unknown:
-        raise typer.BadParameter(f"unknown variant(s) {', '.join(unknown)}; choose from goal, dr, re")
+        raise typer.BadParameter(
+            f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(FORCEFORMER_VARIANTS)}"
+        )
     return ",".join(name for name in names if name != "baseline")
 
 
@@ -403,8 +418,8 @@ VariantsOption = Annotated[
     str | None,
     _optional(
         "--variants",
-        "Comma-separated ForceFormer variants besides the baseline (always included): goal, dr, re. "
-        "Default: report.variants of the config (all three).",
+        "Comma-separated ForceFormer variants besides the baseline (always included): "
+        f"{', '.join(FORCEFORMER_VARIANTS)}. Default: report.variants of the config (all three).",
         _check_variants,
     ),
 ]
@@ -441,16 +456,13 @@ def evaluate(
     force: ForceOption = False,
 ) -> None:
     """Sample K futures per test agent-window; minADE/minFDE and collisions; predictions saved as Parquet."""
+    from fftool.config import load_config, predictor_config
     from fftool.reports import evaluation_table
     from fftool.ui import out_console
 
-    values = {"evaluate.predictor": "cv" if variant == "cv" else "cvae"}
-    if variant != "cv":
-        values["cvae.variant"] = variant
-    if protocol:
-        values["evaluate.protocol"] = protocol
+    cfg = predictor_config(load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None), variant)
     built = [
-        _run_stages(["evaluate"], config, set_, root, force, device, benchmark, values)["evaluate"]
+        _build_stages(cfg, ["evaluate"], root, force, device, benchmark)["evaluate"]
         for benchmark in benchmarks.split(",")
     ]
     out_console.print(evaluation_table(built))
@@ -581,39 +593,63 @@ def plot(
 
     Reads the saved predictions of each predictor's evaluation (evaluated first if only the model exists).
     """
-    import pandas as pd
-
-    from fftool import ablation, pipeline, plots
-    from fftool.batches import load_agent_windows
-    from fftool.config import load_config
-    from fftool.schema import PREDICTIONS_FILE
+    from fftool import plots
+    from fftool.config import load_config, predictor_config
     from fftool.ui import log
 
     predictors = [_check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
     cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
-    store = _store(root)
-    runtime = pipeline.Runtime(device=device)
-    evaluations, frames, windows_artifact = [], {}, None
-    for predictor in predictors:
-        cell = ablation.predictor_config(cfg, predictor)
-        built = pipeline.run(cell, store, ["evaluate"], runtime=runtime, upstream=False, benchmark=benchmark)
-        frames[predictor] = pd.read_parquet(built["evaluate"].file(PREDICTIONS_FILE))
-        evaluations.append(plots.Evaluation(predictor, cfg.evaluate.k, frames[predictor]))
-        windows_artifact = built["windows"]
-    assert windows_artifact is not None
-    data = load_agent_windows(windows_artifact, benchmark, cfg.evaluate.part)
-    chosen = [int(w) for w in windows.split(",")] if windows else plots.pick_windows(evaluations, count)
-    unknown = sorted(set(chosen) - set(data.window_id.tolist()))
-    if unknown:
-        raise FftoolError(f"--windows: {unknown} are not window ids of {benchmark}/{cfg.evaluate.part}")
-    out.mkdir(parents=True, exist_ok=True)
-    obs_len = int(windows_artifact.manifest.stats["obs_len"])
-    scenes_dir = Path(cfg.data.scenes_dir)
-    figure = plots.qualitative(
-        evaluations, data, chosen, scenes_dir, obs_len, best, out / f"qualitative_{benchmark}.png"
+    built = [
+        _build_stages(predictor_config(cfg, predictor), ["evaluate"], root, False, device, benchmark)
+        for predictor in predictors
+    ]
+    written = plots.figures(
+        {benchmark: [plots.Evaluation.of(b["evaluate"]) for b in built]},
+        built[0]["windows"],
+        cfg.evaluate.part,
+        Path(cfg.data.scenes_dir),
+        out,
+        density_file=f"density_{benchmark}.png",
+        window_ids=[int(w) for w in windows.split(",")] if windows else None,
+        count=count,
+        best_only=best,
     )
-    curves = plots.density_curves({benchmark: frames}, out / f"density_{benchmark}.png")
-    log(f"wrote {figure} (windows {', '.join(map(str, chosen))}) and {curves}")
+    log(f"wrote {', '.join(map(str, written))}")
+
+
+def _check_threshold(value: float) -> float:
+    if not 0 < value < float("inf"):  # also refuses nan
+        raise typer.BadParameter(f"{value!r} is not a distance in metres above 0")
+    return value
+
+
+@app.command(epilog="Example: fftool rescore evaluate/3f9c2a --threshold 0.2")
+@_boundary
+def rescore(
+    artifact_id: Annotated[
+        str,
+        typer.Argument(
+            metavar="ID", help="An evaluate artifact: evaluate/fingerprint-prefix, or evaluate (the newest)."
+        ),
+    ],
+    threshold: Annotated[
+        float,
+        typer.Option(
+            "--threshold",
+            help="Collision threshold γ in metres (evaluate.collision_threshold_m).",
+            callback=_check_threshold,
+        ),
+    ],
+    root: RootOption = None,
+) -> None:
+    """Re-score an evaluation's saved predictions at another collision threshold, without sampling again."""
+    from fftool.evaluate import rescore_artifact
+    from fftool.reports import rescore_table
+    from fftool.ui import out_console
+
+    store = _store(root)
+    evaluation = store.resolve(artifact_id)
+    out_console.print(rescore_table(evaluation, rescore_artifact(store, evaluation, threshold)))
 
 
 @app.command("fetch-data", epilog="Example: fftool fetch-data --dest data/eth_ucy/raw")

@@ -18,7 +18,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from pydantic_core import PydanticCustomError
 
 from fftool.errors import ConfigError
-from fftool.scenes import DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN
+from fftool.published import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
+from fftool.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Benchmark, Part
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -160,8 +161,21 @@ class GoalConfig(_Section):
         return self
 
 
-class GoalsConfig(_Section):
-    """Goal sampling from the trained U-Net (stage `goals`, command `fftool sample-goals`)."""
+class _ConstantVelocity(_Section):
+    """The constant-velocity reference (protocols.constant_velocity): sample 0 extrapolates the last observed
+    velocity, samples 1..K-1 turn its heading and scale its speed by these standard deviations.
+
+    One definition for the two sections that draw it: `goals` (its goal-FDE reference) and `evaluate` (the cv
+    predictor). Each keeps its own keys, since each is part of only its own stage's fingerprint.
+    """
+
+    cv_angle_std_deg: float = Field(15.0, ge=0)  # heading noise
+    cv_speed_std: float = Field(0.2, ge=0)  # speed factor noise
+
+
+class GoalsConfig(_ConstantVelocity):
+    """Goal sampling from the trained U-Net (stage `goals`, command `fftool sample-goals`), with the
+    constant-velocity goals beside them."""
 
     k: int = Field(20, gt=0)
     method: Literal["ttst", "multinomial"] = "ttst"  # mode + k-means centres (Goal-SAR), or plain draws
@@ -169,11 +183,7 @@ class GoalsConfig(_Section):
     threshold: float = Field(0.05, ge=0, lt=1)  # cells below threshold · max P are dropped (Goal-SAR's ρ)
     samples: int = Field(2000, gt=0)  # draws per agent clustered by k-means (Goal-SAR: 10,000)
     kmeans_iterations: int = Field(20, gt=0)
-    parts: tuple[Literal["train", "val", "test"], ...] = Field(("val", "test"), min_length=1)
-    # The constant-velocity reference: the last observed velocity extrapolated to the last step, and
-    # K - 1 more goals with the heading and speed perturbed by these standard deviations.
-    cv_angle_std_deg: float = Field(15.0, ge=0)
-    cv_speed_std: float = Field(0.2, ge=0)
+    parts: tuple[Part, ...] = Field(("val", "test"), min_length=1)
     seed: int = 0
 
 
@@ -182,7 +192,7 @@ class CVAEConfig(_Section):
 
     # baseline: position, velocity; goal: + goal and position - goal; dr: + driving force;
     # re: + goal features + repulsive force (ForceFormer §III-A).
-    variant: Literal["baseline", "goal", "dr", "re"] = "baseline"
+    variant: Variant = "baseline"
     d_model: int = Field(256, gt=0)
     n_heads: int = Field(8, gt=0)
     d_ff: int = Field(512, gt=0)
@@ -229,7 +239,7 @@ class CVAEConfig(_Section):
         return self
 
 
-class EvaluateConfig(_Section):
+class EvaluateConfig(_ConstantVelocity):
     """Test-time sampling and metrics (ForceFormer §IV-C; definitions in docs/metrics.md)."""
 
     # cvae: the trained model of the `cvae` section's variant; cv: the constant-velocity reference.
@@ -240,21 +250,16 @@ class EvaluateConfig(_Section):
     k: int = Field(20, gt=0)
     part: Literal["test", "val"] = "test"
     collision_threshold_m: float = Field(0.1, gt=0)  # γ (paper); pairs closer than this collide
-    cv_angle_std_deg: float = Field(15.0, ge=0)  # cv samples 1..K-1: heading noise
-    cv_speed_std: float = Field(0.2, ge=0)  # and speed factor noise
     batch_windows: int = Field(32, gt=0)  # windows per forward pass (speed only: results do not change)
     max_agent_pairs: int = Field(2048, gt=0)  # windows × agents² per pass (smaller passes are faster on CPU)
     seed: int = 0
 
 
-Benchmark = Literal["eth", "hotel", "univ", "zara1", "zara2"]
-
-
 class ReportConfig(_Section):
     """What `ablate` and `reproduce` cover and how the tables count (not part of any fingerprint)."""
 
-    benchmarks: tuple[Benchmark, ...] = Field(("eth", "hotel", "univ", "zara1", "zara2"), min_length=1)
-    variants: tuple[Literal["goal", "dr", "re"], ...] = ("goal", "dr", "re")  # baseline always included
+    benchmarks: tuple[Benchmark, ...] = Field(BENCHMARKS, min_length=1)
+    variants: tuple[ForceFormerVariant, ...] = FORCEFORMER_VARIANTS  # baseline always included
     collision_pairs: Literal["ordered", "unordered"] = "ordered"  # the paper's sum is over m != n
     collision_sample: Literal["best_ade", "joint"] = "best_ade"  # per-agent best-ADE (paper) or one per window
     constant_velocity: bool = True  # add the cv reference rows
@@ -274,6 +279,20 @@ class PipelineConfig(_Section):
     cvae: CVAEConfig = CVAEConfig()
     evaluate: EvaluateConfig = EvaluateConfig()
     report: ReportConfig = ReportConfig()
+
+
+def predictor_config(cfg: PipelineConfig, predictor: str) -> PipelineConfig:
+    """The configuration whose `evaluate` target scores `predictor`: a CVAE variant, or cv."""
+    if predictor not in PREDICTORS:
+        raise ValueError(f"unknown predictor {predictor!r}; one of {', '.join(PREDICTORS)}")
+    if predictor == "cv":
+        return cfg.model_copy(update={"evaluate": cfg.evaluate.model_copy(update={"predictor": "cv"})})
+    return cfg.model_copy(
+        update={
+            "cvae": cfg.cvae.model_copy(update={"variant": predictor}),
+            "evaluate": cfg.evaluate.model_copy(update={"predictor": "cvae"}),
+        }
+    )
 
 
 def _parse_value(text: str) -> Any:

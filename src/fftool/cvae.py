@@ -26,7 +26,7 @@ import torch
 from fftool.batches import SceneSet, load_scene_set
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.cvaenet import autocast, build_model, sample
-from fftool.metrics import displacement
+from fftool.metrics import ade_fde
 from fftool.models.forceformer import ForceFormer, LossParts, cvae_loss
 from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.store import Artifact
@@ -82,10 +82,10 @@ def val_metrics(
     ade, fde, count = 0.0, 0.0, 0
     for members in scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0)):
         prepared = prepare(scenes.batch(members).to(device), cfg.variant, obs_len)
-        error = displacement(predict(prepared), prepared.future_pos)  # (B, K, A, Tf)
+        sample_ade, sample_fde = ade_fde(predict(prepared), prepared.future_pos)  # (B, K, A)
         mask = prepared.agent_mask
-        ade += float((error.mean(-1).min(1).values * mask).sum())
-        fde += float((error[..., -1].min(1).values * mask).sum())
+        ade += float((sample_ade.min(1).values * mask).sum())
+        fde += float((sample_fde.min(1).values * mask).sum())
         count += int(mask.sum())
     return ade / max(count, 1), fde / max(count, 1)
 

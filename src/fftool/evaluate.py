@@ -25,14 +25,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.batches import AgentWindows, SceneBatch, SceneSet, load_scene_set
+from fftool.batches import AgentWindows, SceneBatch, SceneSet, load_agent_windows, load_scene_set
 from fftool.config import EvaluateConfig, PipelineConfig
 from fftool.cvaenet import load_model, sample
-from fftool.errors import FftoolError
+from fftool.errors import ArtifactMissing, FftoolError
 from fftool.metrics import agent_metrics, collision_count
 from fftool.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
 from fftool.schema import GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE
-from fftool.store import Artifact
+from fftool.store import Artifact, ArtifactStore, check_schema
 from fftool.training import generator
 from fftool.trajfeatures import prepare
 
@@ -287,3 +287,22 @@ def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: 
         name: getattr(metrics, name)[which, slot].numpy()
         for name in ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions")
     }
+
+
+def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, Any]:
+    """An evaluate artifact's summary recomputed from its saved predictions with collision threshold
+    `threshold_m` (command `fftool rescore`): no sampling, so only the collision counts can change."""
+    check_schema(evaluation, NAME, VERSION, "fftool evaluate")
+    windows = store.lookup("windows", evaluation.manifest.inputs["windows"])
+    if windows is None:
+        raise ArtifactMissing(
+            f"the windows artifact {evaluation.id} was built from is no longer under {store.root}; run `fftool ingest`"
+        )
+    store.check_inputs(
+        {"evaluate": evaluation, "windows": windows}, {"evaluate": "fftool evaluate", "windows": "fftool ingest"}
+    )
+    stats = evaluation.manifest.stats
+    cfg = EvaluateConfig(part=stats["part"], k=stats["k"], seed=stats["seed"], collision_threshold_m=threshold_m)
+    data = load_agent_windows(windows, stats["benchmark"], cfg.part)
+    columns = rescore(pd.read_parquet(evaluation.file(PREDICTIONS_FILE)), data, cfg.k, threshold_m)
+    return summary(columns, cfg, stats["benchmark"], stats["variant"], stats["protocol"])

@@ -7,31 +7,17 @@ frame id of the last observed step). People understand forces by looking at them
 from __future__ import annotations
 
 import itertools
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 
 from fftool.errors import FftoolError
+from fftool.maps import project, read_scene
 from fftool.scenes import BENCHMARK_TEST_SOURCES
 from fftool.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, TRACKS_FILE, WINDOWS_FILE
 from fftool.store import Artifact
-
-
-def load_homography(scene_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """(image (H, W, 3), world->pixel matrix (3, 3)) of a scene folder, or None without geometry."""
-    image_path, matrix_path = scene_dir / "reference.png", scene_dir / "world_to_pixel.txt"
-    if not (image_path.is_file() and matrix_path.is_file()):
-        return None
-    import matplotlib.image
-
-    return matplotlib.image.imread(image_path), np.loadtxt(matrix_path).reshape(3, 3)
-
-
-def world_to_pixel(matrix: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Apply a 3×3 homography to (..., 2) world points: p = M [x, y, 1], (u, v) = p[:2] / p[2]."""
-    homogeneous = np.concatenate([xy, np.ones((*xy.shape[:-1], 1))], axis=-1) @ matrix.T
-    return homogeneous[..., :2] / homogeneous[..., 2:3]
 
 
 def _find_window(windows: Artifact, scene: str, frame_id: int, source: str | None) -> tuple[int, str, int]:
@@ -96,32 +82,32 @@ def explain_window(
     bystanders = bystanders[~bystanders["ped_id"].isin(ped_ids)][["x", "y"]].to_numpy()
 
     now = xy[:, obs_len - 1]
-    geometry = load_homography(scenes_dir / scene)
-    project = (lambda p: world_to_pixel(geometry[1], p)) if geometry else (lambda p: p)
+    background = read_scene(scenes_dir / scene)  # None: draw in metres
+    pixels = partial(project, background)
     fig, ax = plt.subplots(figsize=(10, 8), dpi=110)
-    if geometry:
-        ax.imshow(geometry[0])
+    if background:
+        ax.imshow(background.image)
     for path in xy[:, :obs_len]:
-        ax.plot(*project(path).T, color="white" if geometry else "grey", lw=1.2, alpha=0.9)
+        ax.plot(*pixels(path).T, color="white" if background else "grey", lw=1.2, alpha=0.9)
     if len(bystanders):
-        ax.scatter(*project(bystanders).T, s=18, c="lightgrey", edgecolors="black", lw=0.5, label="others present")
-    ax.scatter(*project(now).T, s=36, c="yellow", edgecolors="black", lw=0.7, zorder=3, label="valid pedestrians")
+        ax.scatter(*pixels(bystanders).T, s=18, c="lightgrey", edgecolors="black", lw=0.5, label="others present")
+    ax.scatter(*pixels(now).T, s=36, c="yellow", edgecolors="black", lw=0.7, zorder=3, label="valid pedestrians")
     for a, b in itertools.combinations(range(len(rows)), 2):
         if group[a] >= 0 and group[a] == group[b]:
-            ax.plot(*project(now[[a, b]]).T, ls="--", color="cyan", lw=1.5, zorder=2)
+            ax.plot(*pixels(now[[a, b]]).T, ls="--", color="cyan", lw=1.5, zorder=2)
     for force, scale, color, name in ((f_dr, dr_scale_s2, "lime", "F_dr"), (f_re, re_scale_s2, "red", "F_re")):
-        start, end = project(now), project(now + scale * force)
+        start, end = pixels(now), pixels(now + scale * force)
         for (x0, y0), (x1, y1) in zip(start, end):
             ax.annotate("", xy=(x1, y1), xytext=(x0, y0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
         ax.plot([], [], color=color, lw=2, label=f"{name} × {scale:g} s² (m)")
     ax.plot([], [], ls="--", color="cyan", label="group (no mutual repulsion)")
     ax.set_title(
         f"{scene} ({source}), frame {frame_id}: forces at the last observed step"
-        + ("\n(background: the scene's reference image, not this frame)" if geometry else ""),
+        + ("\n(background: the scene's reference image, not this frame)" if background else ""),
         fontsize=10,
     )
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
-    if geometry:
+    if background:
         ax.set_axis_off()
     else:
         ax.set_aspect("equal")

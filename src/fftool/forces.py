@@ -22,6 +22,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
+from fftool.batches import pair_budget_batches
 from fftool.config import ForcesConfig
 from fftool.errors import FftoolError
 from fftool.groups import cluster_frames
@@ -112,7 +113,8 @@ def _compute_sequence(
     outputs: dict[str, list[np.ndarray]] = {name: [] for name in FORCES_ARRAYS}
     keys_first, keys_ped = [], []
     pairs = grouped = 0
-    for chunk in _chunks(order, n_actors[order], window_len):
+    for run in pair_budget_batches(n_actors[order], _PAIR_BUDGET // window_len):  # pairs × steps in budget
+        chunk = order[run]
         slot_ped, slot_mask = _slots(actors[chunk])  # (B, N) pedestrian index per slot
         chunk_steps = steps[chunk]  # (B, L)
         ped_index = np.where(slot_mask, slot_ped, 0)
@@ -152,20 +154,6 @@ def _compute_sequence(
     dtypes = {"group_id": np.int32}
     arrays = {name: np.concatenate(parts).astype(dtypes.get(name, np.float32)) for name, parts in outputs.items()}
     return _Features(np.concatenate(keys_first), np.concatenate(keys_ped), arrays, pairs, grouped)
-
-
-def _chunks(order: np.ndarray, sorted_actors: np.ndarray, window_len: int) -> list[np.ndarray]:
-    """Split windows (sorted by actor count) into batches of at most _PAIR_BUDGET pair-steps."""
-    chunks, begin = [], 0
-    while begin < order.size:
-        end = begin + 1
-        while (
-            end < order.size and (end + 1 - begin) * max(int(sorted_actors[end]), 1) ** 2 * window_len <= _PAIR_BUDGET
-        ):
-            end += 1
-        chunks.append(order[begin:end])
-        begin = end
-    return chunks
 
 
 def _slots(actors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

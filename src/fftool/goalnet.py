@@ -24,6 +24,7 @@ from fftool.heatmaps import (
     softargmax,
     world_to_cells,
 )
+from fftool.metrics import goal_fde
 from fftool.models import GoalUNet
 from fftool.schema import GOAL_MODEL_FILE
 from fftool.store import Artifact
@@ -96,12 +97,6 @@ def predict_goals(
         generator=gen,
     )
     return cells_to_world(cells, center, R, cfg.resolution_m, cfg.crop_cells)
-
-
-def goal_fde(goals: Tensor, truth: Tensor) -> tuple[Tensor, Tensor]:
-    """Per agent: min over K of ‖goal_k − truth‖ (FDE@K) and the mode's error (FDE@1), metres."""
-    errors = torch.linalg.vector_norm(goals - truth[:, None, :], dim=-1)  # (B, K)
-    return errors.min(-1).values, errors[:, 0]
 
 
 def evaluate(

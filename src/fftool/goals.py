@@ -2,12 +2,11 @@
 
 Reads: goal (the model), windows, maps. Writes: `goals/<fp>/goals.npy` (M, K, 2), `cv_goals.npy`
 (the constant-velocity reference, same layout) and index.parquet. Run:
-`fftool sample-goals --benchmark zara1`. The manifest holds goal-FDE@K and FDE@1 per part for both.
+`fftool sample-goals --benchmarks zara1`. The manifest holds goal-FDE@K and FDE@1 per part for both.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
@@ -16,11 +15,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
-from torch import Tensor
 
 from fftool.batches import load_agent_windows, load_scene_maps
 from fftool.config import GoalsConfig
-from fftool.goalnet import goal_fde, load_model, predict_goals
+from fftool.goalnet import load_model, predict_goals
+from fftool.metrics import goal_fde
+from fftool.protocols import constant_velocity
 from fftool.schema import CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE
 from fftool.store import Artifact
 from fftool.training import generator
@@ -28,19 +28,6 @@ from fftool.training import generator
 NAME: Final = "goals"
 VERSION: Final = 1
 INPUTS: Final = ("goal", "windows", "maps")
-
-
-def constant_velocity_goals(obs: Tensor, pred_len: int, k: int, cfg: GoalsConfig, gen: torch.Generator) -> Tensor:
-    """(B, K, 2): the last velocity extrapolated pred_len steps, then K - 1 perturbed copies."""
-    velocity = obs[:, -1] - obs[:, -2]  # per step
-    B = len(obs)
-    angle = torch.randn(B, k, generator=gen, device=obs.device) * math.radians(cfg.cv_angle_std_deg)
-    speed = 1 + torch.randn(B, k, generator=gen, device=obs.device) * cfg.cv_speed_std
-    angle[:, 0], speed[:, 0] = 0.0, 1.0  # the plain extrapolation first
-    cos, sin = torch.cos(angle), torch.sin(angle)
-    vx, vy = velocity[:, None, 0], velocity[:, None, 1]
-    turned = torch.stack([cos * vx - sin * vy, sin * vx + cos * vy], -1)  # (B, K, 2)
-    return obs[:, None, -1] + pred_len * speed.clamp_min(0)[..., None] * turned
 
 
 def build(
@@ -77,7 +64,8 @@ def build(
             goals = predict_goals(
                 model, obs, scene[start : start + batch].to(device), scene_maps, goal_cfg, cfg, gen, pred_len
             )
-            cv = constant_velocity_goals(obs, pred_len, cfg.k, cfg, gen)
+            cv = constant_velocity(obs[:, None], pred_len, cfg.k, cfg.cv_angle_std_deg, cfg.cv_speed_std, gen)
+            cv = cv[:, :, 0, -1]  # (B, K, 2): each sample's end point
             for prefix, values in (("goal", goals), ("cv", cv)):
                 k, one = goal_fde(values, truth)
                 fde[f"{prefix}_k"].append(k)

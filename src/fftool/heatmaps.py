@@ -129,9 +129,3 @@ def constant_velocity_cells(obs_cells: Tensor, pred_len: int) -> Tensor:
 def gaussian_target(cells: Tensor, size: int, sigma: float) -> Tensor:
     """(B, 2) goal cells -> (B, S, S) BCE target with peak 1."""
     return render(cells[:, None, :], size, sigma)[:, 0]
-
-
-def bce_floor(target: Tensor) -> float:
-    """The smallest reachable mean BCE for a target map: its mean binary entropy (nats)."""
-    t = target.clamp(1e-12, 1 - 1e-12)
-    return float((-(t * torch.log(t) + (1 - t) * torch.log(1 - t))).mean())

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
@@ -48,6 +49,7 @@ def channel_names(cfg: MapsConfig) -> list[str]:
 
 
 def read_homography(path: Path) -> np.ndarray:
+    """A scene's world->pixel matrix, checked: 3×3, finite and invertible (RawDataError otherwise)."""
     try:
         matrix = np.loadtxt(path)
     except ValueError as exc:
@@ -57,6 +59,12 @@ def read_homography(path: Path) -> np.ndarray:
     return matrix
 
 
+def apply_homography(matrix: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(..., 2) points through a 3×3 homography: p = M [x, y, 1], (u, v) = p[:2] / p[2]."""
+    homogeneous = np.concatenate([xy, np.ones((*xy.shape[:-1], 1))], axis=-1) @ matrix.T
+    return homogeneous[..., :2] / homogeneous[..., 2:3]
+
+
 def _read_image(path: Path, flags: int) -> np.ndarray:
     image = cv2.imread(str(path), flags)
     if image is None:
@@ -64,13 +72,40 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     return image
 
 
-def build_scene(scene_dir: Path, cfg: MapsConfig) -> tuple[np.ndarray, dict[str, Any], np.ndarray]:
-    """(C, H, W) raster, its transform, and the warped RGB image (H, W, 3) for the check figure."""
-    world_to_pixel = read_homography(scene_dir / "world_to_pixel.txt")
-    image = _read_image(scene_dir / "reference.png", cv2.IMREAD_COLOR)
+@dataclass(frozen=True)
+class SceneImage:
+    """A scene's reference image (H, W, 3 RGB) and its world->pixel homography (3, 3)."""
+
+    image: np.ndarray
+    homography: np.ndarray
+
+
+def read_scene(scene_dir: Path) -> SceneImage | None:
+    """The image and homography of a scene folder; None when it lacks either file (a scene without geometry:
+    its crops get no map and its figures are drawn in metres)."""
+    image, matrix = scene_dir / "reference.png", scene_dir / "world_to_pixel.txt"
+    if not (image.is_file() and matrix.is_file()):
+        return None
+    homography = read_homography(matrix)
+    return SceneImage(cv2.cvtColor(_read_image(image, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB), homography)
+
+
+def project(scene: SceneImage | None, xy: np.ndarray) -> np.ndarray:
+    """(..., 2) world metres -> pixels of the scene's image; the metres unchanged for a scene without one."""
+    return xy if scene is None else apply_homography(scene.homography, xy)
+
+
+def build_scene(
+    scene_dir: Path, cfg: MapsConfig
+) -> tuple[np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray]] | None:
+    """(C, H, W) raster, its transform, and the check figure's RGB images (the reference, and its warp onto
+    the raster's grid); None for a scene without geometry."""
+    scene = read_scene(scene_dir)
+    if scene is None:
+        return None
+    world_to_pixel, image = scene.homography, scene.image
     h, w = image.shape[:2]
-    corners = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], float) @ np.linalg.inv(world_to_pixel).T
-    corners = corners[:, :2] / corners[:, 2:]
+    corners = apply_homography(np.linalg.inv(world_to_pixel), np.array([[0, 0], [w, 0], [0, h], [w, h]], float))
     res = cfg.resolution_m
     low = corners.min(0) - cfg.margin_m
     width, height = (np.ceil((corners.max(0) + cfg.margin_m - low) / res)).astype(int)
@@ -89,7 +124,7 @@ def build_scene(scene_dir: Path, cfg: MapsConfig) -> tuple[np.ndarray, dict[str,
         obstacle = cv2.warpPerspective(gray, cell_to_pixel, (width, height), flags=flags | cv2.INTER_NEAREST) > 127
         obstacle = obstacle.astype(np.float32)
 
-    lab = cv2.cvtColor(warped, cv2.COLOR_BGR2LAB).reshape(-1, 3).astype(np.float32)
+    lab = cv2.cvtColor(warped, cv2.COLOR_RGB2LAB).reshape(-1, 3).astype(np.float32)
     pixels = lab[inside.reshape(-1)]
     cv2.setRNGSeed(cfg.seed)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.1)
@@ -107,11 +142,11 @@ def build_scene(scene_dir: Path, cfg: MapsConfig) -> tuple[np.ndarray, dict[str,
         "width": int(width),
         "height": int(height),
     }
-    return raster, transform, cv2.cvtColor(warped, cv2.COLOR_BGR2RGB)
+    return raster, transform, (image, warped)
 
 
 def _check_figure(
-    scene: str, scene_dir: Path, raster: np.ndarray, warped: np.ndarray, transform: dict, out: Path
+    scene: str, raster: np.ndarray, images: tuple[np.ndarray, np.ndarray], transform: dict, out: Path
 ) -> None:
     """reference image | warped onto the ground grid | semantic channels, side by side."""
     import matplotlib
@@ -127,7 +162,8 @@ def _check_figure(
     )
     labels = np.where(raster[0] > 0, raster[2:].argmax(0) + 1, 0)
     fig, axes = plt.subplots(1, 3, figsize=(15, 5), dpi=90)
-    axes[0].imshow(cv2.cvtColor(cv2.imread(str(scene_dir / "reference.png")), cv2.COLOR_BGR2RGB))
+    reference, warped = images
+    axes[0].imshow(reference)
     axes[0].set_title(f"{scene}: reference image (pixels)")
     axes[1].imshow(warped, origin="lower", extent=extent)
     axes[1].set_title("warped onto the ground plane (metres, y up)")
@@ -155,13 +191,13 @@ def build(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any]:
     """
     transforms, missing = {}, []
     for scene in SCENES:
-        scene_dir = scenes_dir / scene
-        if not (scene_dir / "reference.png").is_file() or not (scene_dir / "world_to_pixel.txt").is_file():
+        built = build_scene(scenes_dir / scene, cfg)
+        if built is None:
             missing.append(scene)
             continue
-        raster, transform, warped = build_scene(scene_dir, cfg)
+        raster, transform, images = built
         np.save(out_dir / map_file(scene), raster)
-        _check_figure(scene, scene_dir, raster, warped, transform, out_dir / map_check_file(scene))
+        _check_figure(scene, raster, images, transform, out_dir / map_check_file(scene))
         transforms[scene] = transform
     (out_dir / MAPS_TRANSFORMS_FILE).write_text(
         json.dumps({"scenes": transforms, "channels": channel_names(cfg)}, indent=2)

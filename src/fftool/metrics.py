@@ -34,6 +34,21 @@ def displacement(pred: Tensor, truth: Tensor) -> Tensor:
     return torch.linalg.vector_norm(pred - truth[:, None], dim=-1)
 
 
+def ade_fde(pred: Tensor, truth: Tensor) -> tuple[Tensor, Tensor]:
+    """ADE and FDE of every sample and agent, (B, K, A) each; minADE_K / minFDE_K are their minima over K."""
+    error = displacement(pred, truth)  # (B, K, A, T)
+    return error.mean(-1), error[..., -1]
+
+
+def goal_fde(goals: Tensor, truth: Tensor) -> tuple[Tensor, Tensor]:
+    """Per agent (B,): FDE@K of K goals (B, K, 2), the min over K of ‖ĝ_k − g‖, and FDE@1, the first goal's.
+
+    A goal is a one-step prediction of the end point, so this is minFDE_K (and its first sample's error).
+    """
+    errors = displacement(goals[:, :, None, None], truth[:, None, None])[:, :, 0, 0]  # (B, K)
+    return errors.min(-1).values, errors[:, 0]
+
+
 def pair_contacts(paths: Tensor, agent_mask: Tensor, threshold_m: float) -> Tensor:
     """For each agent, the number of (other real agent, step) pairs closer than threshold: (B, A).
 
@@ -48,8 +63,7 @@ def pair_contacts(paths: Tensor, agent_mask: Tensor, threshold_m: float) -> Tens
 
 def agent_metrics(pred: Tensor, truth: Tensor, agent_mask: Tensor, threshold_m: float) -> AgentMetrics:
     """minADE_K, minFDE_K and both collision counts for each real agent of a batch of windows."""
-    error = displacement(pred, truth)  # (B, K, A, T)
-    ade, fde = error.mean(-1), error[..., -1]  # (B, K, A)
+    ade, fde = ade_fde(pred, truth)  # (B, K, A)
     min_ade, best_k = ade.min(1)
     B, K, A, T, _ = pred.shape
     index = best_k[:, None, :, None, None].expand(B, 1, A, T, 2)

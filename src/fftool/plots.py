@@ -8,7 +8,7 @@ when the scene folder has one (axes are then image pixels), else the axes are wo
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -16,17 +16,18 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import cv2
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
 from fftool import __version__
-from fftool.batches import AgentWindows
-from fftool.errors import UsageError
-from fftool.maps import read_homography
+from fftool.batches import AgentWindows, load_agent_windows
+from fftool.errors import FftoolError, UsageError
+from fftool.maps import SceneImage, project, read_scene
 from fftool.published import PAPER_NAMES
 from fftool.scenes import SOURCE_SCENE
+from fftool.schema import PREDICTIONS_FILE
+from fftool.store import Artifact
 
 SOFTWARE = f"fftool {__version__}"  # PNG metadata: marks a figure fftool may overwrite
 COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff7f0e", "re": "#d62728"}
@@ -34,10 +35,7 @@ COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff
 
 def save_figure(fig: plt.Figure, out: Path, **savefig: object) -> Path:
     """Write `fig` as PNG atomically; never overwrite a file fftool did not write (UsageError, exit 2)."""
-    if out.exists() and not _written_by_fftool(out):
-        raise UsageError(
-            f"{out}: exists and was not written by fftool; refusing to overwrite it (choose another --out)"
-        )
+    _check_replaceable(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(f".{out.name}.partial-{os.getpid()}")
     try:
@@ -47,6 +45,13 @@ def save_figure(fig: plt.Figure, out: Path, **savefig: object) -> Path:
         partial.unlink(missing_ok=True)
         plt.close(fig)
     return out
+
+
+def _check_replaceable(out: Path) -> None:
+    if out.exists() and not _written_by_fftool(out):
+        raise UsageError(
+            f"{out}: exists and was not written by fftool; refusing to overwrite it (choose another --out)"
+        )
 
 
 def _written_by_fftool(path: Path) -> bool:
@@ -72,29 +77,55 @@ class Evaluation:
         """The predictions indexed by agent_windows row (built once, read per drawn window)."""
         return self.frame.set_index("agent_row")
 
+    @classmethod
+    def of(cls, evaluate: Artifact) -> Evaluation:
+        """The predictions of an evaluate artifact."""
+        stats = evaluate.manifest.stats
+        return cls(stats["variant"], int(stats["k"]), pd.read_parquet(evaluate.file(PREDICTIONS_FILE)))
+
     def futures(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), K, T, 2) predictions of the given agent_windows rows."""
         chosen = self.by_row.loc[rows, "pred"]
         return np.stack([np.asarray(p, dtype=np.float32) for p in chosen]).reshape(len(rows), self.k, -1, 2)
 
 
-class SceneImage:
-    """A scene's reference image and a world -> pixel projection (identity when the scene has none)."""
+def figures(
+    evaluations: Mapping[str, Sequence[Evaluation]],
+    windows: Artifact,
+    part: str,
+    scenes_dir: Path,
+    out_dir: Path,
+    *,
+    density_file: str = "density.png",
+    density_only: Collection[str] = (),
+    window_ids: Sequence[int] | None = None,
+    count: int = 3,
+    best_only: bool = False,
+) -> list[Path]:
+    """The density curves of every benchmark in one figure, then a qualitative figure per benchmark.
 
-    def __init__(self, scenes_dir: Path, source: str) -> None:
-        scene = SOURCE_SCENE.get(source)
-        folder = scenes_dir / scene if scene else None
-        self.image, self.homography = None, None
-        if folder and (folder / "reference.png").is_file() and (folder / "world_to_pixel.txt").is_file():
-            self.image = cv2.cvtColor(cv2.imread(str(folder / "reference.png")), cv2.COLOR_BGR2RGB)
-            self.homography = read_homography(folder / "world_to_pixel.txt")
-
-    def project(self, xy: np.ndarray) -> np.ndarray:
-        if self.homography is None:
-            return xy
-        ones = np.ones((*xy.shape[:-1], 1))
-        uvw = np.concatenate([xy, ones], -1) @ self.homography.T
-        return uvw[..., :2] / uvw[..., 2:]
+    evaluations[benchmark] are drawn side by side, except the `density_only` predictors; the drawn windows
+    are `window_ids`, else the `count` where the predictors differ most. The windows and every output path
+    are checked before anything is drawn, so a refused figure leaves no other behind.
+    """
+    obs_len = int(windows.manifest.stats["obs_len"])
+    panels = []
+    for benchmark, predictors in evaluations.items():
+        data = load_agent_windows(windows, benchmark, part)
+        unknown = sorted(set(window_ids or ()) - set(data.window_id.tolist()))
+        if unknown:
+            raise FftoolError(f"--windows: {unknown} are not window ids of {benchmark}/{part}")
+        drawn = [e for e in predictors if e.predictor not in density_only]
+        chosen = list(window_ids) if window_ids else pick_windows(drawn, count)
+        panels.append((drawn, data, chosen, out_dir / f"qualitative_{benchmark}.png"))
+    density = out_dir / density_file
+    for out in (density, *(panel[-1] for panel in panels)):
+        _check_replaceable(out)
+    frames = {benchmark: {e.predictor: e.frame for e in predictors} for benchmark, predictors in evaluations.items()}
+    written = [density_curves(frames, density)]
+    for drawn, data, chosen, out in panels:
+        written.append(qualitative(drawn, data, chosen, scenes_dir, obs_len, best_only, out))
+    return written
 
 
 def pick_windows(evaluations: Sequence[Evaluation], count: int) -> list[int]:
@@ -125,15 +156,16 @@ def qualitative(
         members = np.flatnonzero(data.window_id == window)
         if len(members) == 0:
             raise ValueError(f"window {window} has no valid agents in this part")
-        scene = SceneImage(scenes_dir, str(data.source[members[0]]))
-        xy = scene.project(data.xy[members])  # (A, L, 2)
+        name = SOURCE_SCENE.get(str(data.source[members[0]]))
+        scene = read_scene(scenes_dir / name) if name else None
+        xy = project(scene, data.xy[members])  # (A, L, 2)
         for col, evaluation in enumerate(evaluations):
             ax = axes[row, col]
             futures = evaluation.futures(data.row[members])  # (A, K, T, 2)
             best = evaluation.by_row.loc[data.row[members], "best_k"].to_numpy()
             if best_only:
                 futures = futures[np.arange(len(members)), best][:, None]
-            futures = scene.project(futures)
+            futures = project(scene, futures)
             _draw_window(ax, scene, xy, futures, obs_len, COLOURS.get(evaluation.predictor, "C0"))
             if row == 0:
                 ax.set_title(PAPER_NAMES.get(evaluation.predictor, evaluation.predictor))
@@ -149,11 +181,11 @@ def qualitative(
     return save_figure(fig, out, dpi=120)
 
 
-def _draw_window(ax, scene: SceneImage, xy: np.ndarray, futures: np.ndarray, obs_len: int, colour: str) -> None:
+def _draw_window(ax, scene: SceneImage | None, xy: np.ndarray, futures: np.ndarray, obs_len: int, colour: str) -> None:
     everything = np.concatenate([xy.reshape(-1, 2), futures.reshape(-1, 2)])
     low, high = everything.min(0), everything.max(0)
-    pad = 0.15 * max(high - low) + (20 if scene.image is not None else 0.5)
-    if scene.image is not None:
+    pad = 0.15 * max(high - low) + (20 if scene is not None else 0.5)
+    if scene is not None:
         ax.imshow(scene.image, alpha=0.8)
     for agent in range(len(xy)):
         for sample in futures[agent]:
@@ -163,7 +195,7 @@ def _draw_window(ax, scene: SceneImage, xy: np.ndarray, futures: np.ndarray, obs
         ax.plot(xy[agent, obs_len - 1 :, 0], xy[agent, obs_len - 1 :, 1], color="white", lw=1.5, ls="--")
         ax.plot(xy[agent, obs_len - 1 :, 0], xy[agent, obs_len - 1 :, 1], color="black", lw=0.6, ls="--")
     ax.set_xlim(low[0] - pad, high[0] + pad)
-    if scene.image is not None:
+    if scene is not None:
         ax.set_ylim(high[1] + pad, low[1] - pad)  # image rows grow downward
     else:
         ax.set_ylim(low[1] - pad, high[1] + pad)

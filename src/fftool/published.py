@@ -1,12 +1,20 @@
-"""The ForceFormer paper's published numbers (Tables II-IV), printed beside ours for comparison.
+"""fftool's predictor names, and the ForceFormer paper's published numbers (Tables II-IV) printed beside ours.
 
-Keys are fftool's predictor names: baseline = AgentFormer as quoted by the paper (its post-fix numbers),
-goal / dr / re = ForceFormer-Goal / -Dr / -Re. Table II lists only AgentFormer, -Dr and -Re.
+Predictors: baseline = AgentFormer as quoted by the paper (its post-fix numbers), goal / dr / re =
+ForceFormer-Goal / -Dr / -Re, cv = the constant-velocity reference. Table II lists only AgentFormer, -Dr and -Re.
 """
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Final, Literal, get_args
+
+# The CVAE's input variants: the AgentFormer baseline and the inputs ForceFormer adds to it (goal, driving
+# force, repulsive force). The config's types, the CLI's checks and the tables all read these.
+ForceFormerVariant = Literal["goal", "dr", "re"]
+Variant = Literal["baseline", ForceFormerVariant]
+FORCEFORMER_VARIANTS: Final[tuple[ForceFormerVariant, ...]] = get_args(ForceFormerVariant)
+VARIANTS: Final[tuple[Variant, ...]] = get_args(Variant)
+PREDICTORS: Final[tuple[str, ...]] = ("cv", *VARIANTS)  # what `evaluate` scores, in the row order of every table
 
 PAPER_NAMES: Final = {
     "cv": "constant velocity",
@@ -15,7 +23,6 @@ PAPER_NAMES: Final = {
     "dr": "ForceFormer-Dr",
     "re": "ForceFormer-Re",
 }
-PREDICTORS: Final = tuple(PAPER_NAMES)  # fftool's predictor names, in the row order of every table
 
 # Table II: minADE_20 / minFDE_20 (m).
 TABLE2_ADE_FDE: Final[dict[str, dict[str, tuple[float, float]]]] = {

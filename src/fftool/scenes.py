@@ -5,7 +5,7 @@ Every number that describes the dataset lives here, so a reader finds the protoc
 
 from __future__ import annotations
 
-from typing import Final, Literal
+from typing import Final, Literal, get_args
 
 # Time base. Raw frame ids step by 10 in every Social-GAN file; one step is 0.4 s (2.5 Hz).
 # Known quirk: the ETH (biwi_eth) recording's real step is about 0.667 s (its annotations were made
@@ -33,22 +33,23 @@ SOURCES: Final[tuple[str, ...]] = (
 # A raw file is one "split" of a source: the whole recording, or its first (train) / last (val) part
 # in time. train + val = all, row for row.
 Split = Literal["all", "train", "val"]
-SPLITS: Final[tuple[Split, ...]] = ("all", "train", "val")
+SPLITS: Final[tuple[Split, ...]] = get_args(Split)
 SPLIT_DIRS: Final[dict[str, str]] = {"all": "all_data", "train": "train", "val": "val"}
 SPLIT_SUFFIX: Final[dict[str, str]] = {"all": "", "train": "_train", "val": "_val"}
 
 # The five benchmark scenes and the sources that make up each one's test part.
-BENCHMARK_TEST_SOURCES: Final[dict[str, tuple[str, ...]]] = {
+Benchmark = Literal["eth", "hotel", "univ", "zara1", "zara2"]
+BENCHMARKS: Final[tuple[Benchmark, ...]] = get_args(Benchmark)
+BENCHMARK_TEST_SOURCES: Final[dict[Benchmark, tuple[str, ...]]] = {
     "eth": ("biwi_eth",),
     "hotel": ("biwi_hotel",),
     "univ": ("students001", "students003"),  # uni_examples stays in training, as in AgentFormer
     "zara1": ("crowds_zara01",),
     "zara2": ("crowds_zara02",),
 }
-BENCHMARKS: Final[tuple[str, ...]] = tuple(BENCHMARK_TEST_SOURCES)
 
 Part = Literal["train", "val", "test"]
-PARTS: Final[tuple[Part, ...]] = ("train", "val", "test")
+PARTS: Final[tuple[Part, ...]] = get_args(Part)
 
 
 def raw_relpath(source: str, split: str) -> str:
@@ -90,7 +91,7 @@ SOURCE_SCENE: Final[dict[str, str | None]] = {
     "students003": "univ",
     "uni_examples": None,
 }
-SCENES: Final[tuple[str, ...]] = ("eth", "hotel", "univ", "zara1", "zara2")
+SCENES: Final[tuple[str, ...]] = BENCHMARKS  # one scene folder per benchmark, named after it
 
 # Published goal-module FDE@20 (m) on ETH/UCY: the targets for the goal estimator alone
 # (research/goal_module.md §5.3; both take the best of 20 goals, independently of the ADE minimum).

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -43,15 +44,26 @@ def driving_force(velocity: Tensor, direction: Tensor, defined: Tensor, desired_
     return torch.where(defined[..., None], force, torch.zeros_like(force))
 
 
-def ellipse_b(r_ab: Tensor, speed_b: Tensor, direction_b: Tensor, step_s: float) -> Tensor:
-    """Semi-minor axis b (..., N, N): 2b = sqrt((|r| + |r - v_b Δt e_b|)^2 - (v_b Δt)^2).
+class Ellipse(NamedTuple):
+    """The elliptical b of every pair, with the pieces its gradient is made of."""
+
+    b: Tensor  # (..., N, N) semi-minor axis
+    ahead: Tensor  # (..., N, N, 2) r_ab - v_b Δt e_b
+    n_sum: Tensor  # (..., N, N) |r_ab| + |r_ab - v_b Δt e_b|
+    live: Tensor  # (..., N, N) bool: the radicand is above its clamp (b is differentiable there)
+
+
+def ellipse_b(r_ab: Tensor, speed_b: Tensor, direction_b: Tensor, step_s: float) -> Ellipse:
+    """Semi-minor axis b (..., N, N): 2b = sqrt((|r| + |r - v_b Δt e_b|)^2 - (v_b Δt)^2), with the terms
+    `pair_repulsion` differentiates, so the forces use exactly this b.
 
     r_ab (..., N, N, 2) = r_a - r_b; speed_b (..., N) and direction_b (..., N, 2) belong to b.
     """
     step = (speed_b * step_s)[..., None, :]  # (..., 1, N) how far b moves in Δt
     ahead = r_ab - step[..., None] * direction_b[..., None, :, :]  # (..., N, N, 2)
-    radicand = (_norm(r_ab) + _norm(ahead)) ** 2 - step**2
-    return 0.5 * torch.sqrt(radicand.clamp_min(RADICAND_MIN))
+    n_sum = _norm(r_ab) + _norm(ahead)
+    radicand = n_sum**2 - step**2
+    return Ellipse(0.5 * torch.sqrt(radicand.clamp_min(RADICAND_MIN)), ahead, n_sum, radicand > RADICAND_MIN)
 
 
 def potential(b: Tensor, v0_m2_s2: float, sigma_m: float) -> Tensor:
@@ -67,13 +79,8 @@ def pair_repulsion(
     With n1 = |r|, n2 = |r - v_b Δt e_b|: grad b = (n1 + n2) (r/n1 + (r - v_b Δt e_b)/n2) / (4 b), and
     dV/db = -V / sigma, so f = V / sigma * grad b. Zero where the radicand is clamped.
     """
-    step = (speed_b * step_s)[..., None, :]
-    ahead = r_ab - step[..., None] * direction_b[..., None, :, :]
-    n1, n2 = _norm(r_ab), _norm(ahead)
-    radicand = (n1 + n2) ** 2 - step**2
-    live = radicand > RADICAND_MIN
-    b = 0.5 * torch.sqrt(radicand.clamp_min(RADICAND_MIN))
-    scale = potential(b, v0_m2_s2, sigma_m) / sigma_m * (n1 + n2) / (4 * b) * live  # |f| / |grad-direction|
+    b, ahead, n_sum, live = ellipse_b(r_ab, speed_b, direction_b, step_s)
+    scale = potential(b, v0_m2_s2, sigma_m) / sigma_m * n_sum / (4 * b) * live  # |f| / |grad-direction|
     return scale[..., None] * (_unit(r_ab) + _unit(ahead))
 
 

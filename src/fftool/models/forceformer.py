@@ -439,8 +439,3 @@ def cvae_loss(
     real = agent_mask.any(1)
     mean = lambda x: (x * real).sum() / real.sum().clamp_min(1)  # noqa: E731
     return LossParts(mean(recon_term + kl_term + sample_term), mean(recon_term), mean(kl_term), mean(sample_term))
-
-
-def position_features(positions: Tensor, step: int) -> Tensor:
-    """The baseline decoder input: the newest position (AgentFormer feeds positions only)."""
-    return positions[:, :, -1]
