@@ -31,8 +31,9 @@ THRESHOLDS_M = (0.30, 0.25)
 
 def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namespace, store) -> list[dict]:
     """Train one recipe to the end of its budget; its log rows, tagged with the recipe's name."""
-    from fftool import cvae, pipeline
+    from fftool import pipeline
     from fftool.config import load_config
+    from fftool.stages import cvae
 
     fixed = {
         "data.raw_dir": str(args.raw.resolve()),
@@ -46,7 +47,7 @@ def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namesp
         out, scratch = Path(work) / "out", Path(work) / "scratch"
         out.mkdir()
         started = time.perf_counter()
-        stats = cvae.build(
+        stats = cvae.train(
             cfg.cvae,
             cfg.forces,
             args.benchmark,
@@ -67,11 +68,12 @@ def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namesp
 
 def _constant_velocity(args: argparse.Namespace, store, profile: Path) -> tuple[float, float]:
     """Validation minADE/minFDE@20 of the constant-velocity reference on the recipes' validation windows."""
-    from fftool import cvae, pipeline
-    from fftool.batches import load_scene_set
+    from fftool import pipeline
     from fftool.config import EvaluateConfig, load_config
-    from fftool.protocols import constant_velocity
-    from fftool.training import generator
+    from fftool.learning.batches import load_scene_set
+    from fftool.learning.protocols import constant_velocity
+    from fftool.learning.training import generator
+    from fftool.stages import cvae
 
     cfg = load_config(profile, [], {"data.raw_dir": str(args.raw.resolve()), "cvae.val_max_windows": args.val_windows})
     built = pipeline.run(cfg, store, ["forces"])
@@ -147,7 +149,7 @@ def main() -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from fftool.store import ArtifactStore
+    from fftool.artifacts.store import ArtifactStore
 
     torch.set_num_threads(args.threads)
     recipes = [spec.split("=", 1) for spec in (args.recipe or DEFAULT_RECIPES)]

@@ -24,12 +24,13 @@ OFFICIAL_STEP_S = {1: 0.32, 2: 0.44, 4: 0.97, 8: 1.34, 16: 3.53, 32: 14.9}
 
 
 def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
-    from fftool import cvae, cvaenet
     from fftool.config import ForcesConfig
-    from fftool.trajfeatures import prepare
+    from fftool.learning import cvae_model
+    from fftool.learning.features import prepare
+    from fftool.stages import cvae
 
     torch.manual_seed(0)
-    model = cvaenet.build_model(cfg).train()
+    model = cvae_model.build_model(cfg).train()
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(0)
     agents, start = 0, time.perf_counter()
@@ -73,9 +74,9 @@ def main() -> None:
     from rich.table import Table
 
     from fftool import pipeline
-    from fftool.batches import load_scene_set
+    from fftool.artifacts.store import ArtifactStore
     from fftool.config import CVAEConfig, load_config
-    from fftool.store import ArtifactStore
+    from fftool.learning.batches import load_scene_set
     from fftool.ui import err_console
 
     err_console.quiet = True

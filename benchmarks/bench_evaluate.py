@@ -1,7 +1,7 @@
 """Evaluation speed: a whole test part, K = 20, d_model 256, forces recomputed while decoding.
 
-Times `fftool.evaluate.build` (the `evaluate` stage's work: batching, sampling, metrics, Parquet) on the
-univ test part (24,334 valid agent-windows) with an untrained `re` model of AgentFormer's size (the cost
+Times `fftool.stages.evaluate.sample_and_score` (the `evaluate` stage's work: batching, sampling, metrics,
+Parquet) on the univ test part (24,334 valid agent-windows) with an untrained `re` model of AgentFormer's size (the cost
 does not depend on the weights) under the oracle goal protocol, and compares it with the official
 AgentFormer code's projected 80 minutes on this machine (research/agentformer.md §10.4).
 Run: `python benchmarks/bench_evaluate.py [--benchmark univ] [--variant re]`.
@@ -31,11 +31,13 @@ def main() -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from fftool import cvaenet, evaluate, pipeline
+    from fftool import pipeline
+    from fftool.artifacts.schema import CVAE_MODEL_FILE
+    from fftool.artifacts.store import ArtifactStore
     from fftool.config import CVAEConfig, EvaluateConfig, ForcesConfig, load_config
-    from fftool.schema import CVAE_MODEL_FILE
-    from fftool.store import ArtifactStore
-    from fftool.training import save_checkpoint
+    from fftool.learning import cvae_model
+    from fftool.learning.training import save_checkpoint
+    from fftool.stages import evaluate
     from fftool.ui import err_console
 
     with tempfile.TemporaryDirectory() as root:
@@ -51,7 +53,7 @@ def main() -> None:
         save_checkpoint(
             model_dir / CVAE_MODEL_FILE,
             {
-                "state_dict": cvaenet.build_model(cfg).state_dict(),
+                "state_dict": cvae_model.build_model(cfg).state_dict(),
                 "config": cfg.model_dump(mode="json"),
                 "forces_config": ForcesConfig().model_dump(mode="json"),
                 "dt_s": 0.4,
@@ -61,7 +63,7 @@ def main() -> None:
         out = Path(root) / "out"
         out.mkdir()
         started = time.perf_counter()
-        stats = evaluate.build(
+        stats = evaluate.sample_and_score(
             EvaluateConfig(protocol=args.protocol),
             args.benchmark,
             built["windows"],

@@ -26,8 +26,8 @@ DEFAULT_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "
 
 def _stage(raw: Path, root: Path) -> tuple[dict, float]:
     from fftool import pipeline
+    from fftool.artifacts.store import ArtifactStore
     from fftool.config import load_config
-    from fftool.store import ArtifactStore
 
     cfg = load_config(None, [f"data.raw_dir={str(raw)!r}"])
     store = ArtifactStore(root)
@@ -80,10 +80,10 @@ def _subset(raw: Path) -> dict:
     import pyarrow.parquet as pq
     import torch
 
-    from fftool import forces
     from fftool.config import ForcesConfig, IngestConfig
-    from fftool.ingest import build as ingest_build
-    from fftool.socialforce import desired_speed, finite_difference_velocity, same_group
+    from fftool.science.social_forces import desired_speed, finite_difference_velocity, same_group
+    from fftool.stages import forces
+    from fftool.stages.tracks import ingest_raw as ingest_build
 
     cfg = ForcesConfig()
     with tempfile.TemporaryDirectory() as tmp:

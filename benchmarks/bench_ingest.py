@@ -24,8 +24,8 @@ DEFAULT_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "
 def fftool_ingest(raw: Path) -> None:
     """The whole `fftool ingest`: hash inputs, validate 24 files, write tracks and windows artifacts."""
     from fftool import pipeline
+    from fftool.artifacts.store import ArtifactStore
     from fftool.config import load_config
-    from fftool.store import ArtifactStore
 
     with tempfile.TemporaryDirectory() as root:
         cfg = load_config(None, [f"data.raw_dir={str(raw)!r}"])
@@ -34,8 +34,8 @@ def fftool_ingest(raw: Path) -> None:
 
 def fftool_validate(raw: Path) -> None:
     """Only the parse + validation of the 24 files (the part comparable to read_csv)."""
-    from fftool.ingest import raw_files
-    from fftool.rawfiles import read_raw
+    from fftool.dataset.rawfiles import read_raw
+    from fftool.stages.tracks import raw_files
 
     for path in raw_files(raw).values():
         read_raw(path, frame_stride=10)

@@ -17,8 +17,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from fftool.artifacts.store import ArtifactStore
 from fftool.pipeline import STAGES
-from fftool.store import ArtifactStore
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_TIME_KEYS = ("build_seconds", "seconds_this_run", "seconds_total", "seconds")

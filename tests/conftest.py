@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fftool.scenes import SOURCES, raw_relpath
-from fftool.store import ArtifactStore
+from fftool.artifacts.store import ArtifactStore
+from fftool.dataset.scenes import SOURCES, raw_relpath
 
 REAL_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_ucy" / "raw"
 

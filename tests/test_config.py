@@ -10,9 +10,9 @@ from typer.testing import CliRunner
 
 from fftool.cli import app
 from fftool.config import PipelineConfig, load_config, predictor_config
+from fftool.dataset.scenes import BENCHMARK_TEST_SOURCES, BENCHMARKS
 from fftool.errors import ConfigError
-from fftool.published import FORCEFORMER_VARIANTS, PAPER_NAMES, PREDICTORS
-from fftool.scenes import BENCHMARK_TEST_SOURCES, BENCHMARKS
+from fftool.paper import FORCEFORMER_VARIANTS, PAPER_NAMES, PREDICTORS
 
 FLOAT_KEYS = [
     f"{section}.{name}"

@@ -10,15 +10,17 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from fftool import cvae, cvaenet, pipeline, training
-from fftool.batches import load_scene_set
+from fftool import pipeline
+from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import CVAEConfig, ForcesConfig, load_config
 from fftool.errors import IntegrityError
+from fftool.learning import cvae_model, training
+from fftool.learning.batches import load_scene_set
+from fftool.learning.features import FEATURE_DIMS, prepare
+from fftool.learning.training import save_checkpoint
 from fftool.models.forceformer import Gaussian
-from fftool.store import ArtifactStore
-from fftool.training import save_checkpoint
-from fftool.trajfeatures import FEATURE_DIMS, prepare
+from fftool.stages import cvae
 
 TINY = CVAEConfig(
     d_model=16,
@@ -44,7 +46,7 @@ def inputs(raw_tree: Path, tmp_path: Path) -> dict:
 def _train(inputs: dict, tmp_path: Path, name: str, cfg: CVAEConfig, on_progress=None) -> dict:
     out = tmp_path / name
     out.mkdir(exist_ok=True)
-    return cvae.build(
+    return cvae.train(
         cfg, ForcesConfig(), "zara1", inputs["windows"], inputs["forces"], out, tmp_path / "scratch",
         torch.device("cpu"), on_progress,
     )  # fmt: skip
@@ -56,7 +58,7 @@ def test_every_variant_trains_and_reloads(inputs: dict, tmp_path: Path, variant:
     assert [row["epoch"] for row in stats["log"]] == [1, 2]
     assert all(row["val_min_ade@3_m"] > 0 for row in stats["log"])
     artifact = type("A", (), {"file": lambda self, name: tmp_path / variant / name})()
-    model, cfg, _, _ = cvaenet.load_model(artifact, torch.device("cpu"))
+    model, cfg, _, _ = cvae_model.load_model(artifact, torch.device("cpu"))
     assert cfg.variant == variant and model.past_embed.inp.in_features == FEATURE_DIMS[variant]
 
 
@@ -121,7 +123,7 @@ def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatc
     assert len(first) > 1
     cfg = TINY.model_copy(update={"variant": "re", "dropout": 0.0})
     torch.manual_seed(0)
-    model = cvaenet.build_model(cfg)
+    model = cvae_model.build_model(cfg)
 
     def step(members: np.ndarray) -> tuple[float, list[torch.Tensor]]:
         model.zero_grad()
@@ -157,7 +159,7 @@ def test_bf16_precision_runs_products_in_bfloat16_and_keeps_losses_float32(input
     for precision in ("fp32", "bf16"):
         cfg = TINY.model_copy(update={"variant": "re", "precision": precision})
         torch.manual_seed(0)
-        model = cvaenet.build_model(cfg)
+        model = cvae_model.build_model(cfg)
         seen: set[torch.dtype] = set()
         model.decoder[0].ff[0].register_forward_hook(lambda module, args, out, seen=seen: seen.add(out.dtype))
         parts = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator().manual_seed(0))
@@ -172,9 +174,9 @@ def test_bf16_precision_runs_products_in_bfloat16_and_keeps_losses_float32(input
 def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
     cfg = TINY.model_copy(update={"compile": True})
     torch.manual_seed(0)
-    compiled = cvaenet.build_model(cfg).eval()
+    compiled = cvae_model.build_model(cfg).eval()
     torch.manual_seed(0)
-    plain = cvaenet.build_model(cfg.model_copy(update={"compile": False})).eval()
+    plain = cvae_model.build_model(cfg.model_copy(update={"compile": False})).eval()
     assert compiled.state_dict().keys() == plain.state_dict().keys()  # checkpoints load either way
     past, mask = torch.randn(3, 4, 8, FEATURE_DIMS["baseline"]), torch.tensor([[1, 1, 1, 0]] * 3, dtype=torch.bool)
     with torch.no_grad():
@@ -182,7 +184,7 @@ def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
 
 
 def test_learning_rate_schedules_follow_the_step_budget() -> None:
-    from fftool.training import lr_factor
+    from fftool.learning.training import lr_factor
 
     cosine = [lr_factor("cosine", step, 100, 0.1) for step in range(100)]
     assert cosine[0] == pytest.approx(0.1) and cosine[9] == pytest.approx(1.0)  # linear warm-up over 10 steps
@@ -240,14 +242,14 @@ def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: st
     torch.manual_seed(0)
     path = tmp_path / "model.pt"
     saved = {
-        "state_dict": cvaenet.build_model(TINY).state_dict(),
+        "state_dict": cvae_model.build_model(TINY).state_dict(),
         "config": TINY.model_dump(mode="json"),
         "forces_config": ForcesConfig().model_dump(mode="json"),
         "dt_s": 0.4,
     }
     save_checkpoint(path, saved)
     artifact = type("A", (), {"file": lambda self, name: tmp_path / name})()
-    assert cvaenet.load_model(artifact, torch.device("cpu")).config == TINY
+    assert cvae_model.load_model(artifact, torch.device("cpu")).config == TINY
     if tamper == "garbage":
         path.write_bytes(b"garbage!" + path.read_bytes()[8:])
     elif tamper == "pickled function":
@@ -255,7 +257,7 @@ def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: st
     else:
         torch.save({"state_dict": {}, "in_channels": 14, "config": {"crop_cells": 16}}, path)
     with pytest.raises(IntegrityError) as caught:
-        cvaenet.load_model(artifact, torch.device("cpu"))
+        cvae_model.load_model(artifact, torch.device("cpu"))
     message = str(caught.value)
     assert message.startswith(f"{path}: not a valid fftool checkpoint, ")
     assert message.endswith("; rebuild it with `fftool train-cvae --force`")

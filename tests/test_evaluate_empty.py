@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from fftool import batches, evaluate
-from fftool.batches import AgentWindows
+from fftool.artifacts.schema import FORCES_ARRAYS
 from fftool.config import EvaluateConfig
 from fftool.errors import FftoolError
-from fftool.schema import FORCES_ARRAYS
+from fftool.learning import batches
+from fftool.learning.batches import AgentWindows
+from fftool.stages import evaluate
 
 OBS_LEN, PRED_LEN = 8, 12
 
@@ -46,7 +47,7 @@ def test_evaluating_a_part_without_agent_windows_is_an_error(monkeypatch: pytest
     out_dir.mkdir()
     cfg = EvaluateConfig(predictor="cv", part="val")
     with pytest.raises(FftoolError) as info:
-        evaluate.build(cfg, "zara1", windows, forces, None, None, out_dir, torch.device("cpu"))
+        evaluate.sample_and_score(cfg, "zara1", windows, forces, None, None, out_dir, torch.device("cpu"))
     message = str(info.value)
     assert "zara1/val" in message and "0 valid agent-windows" in message
     assert f"expected at least one pedestrian present for {OBS_LEN + PRED_LEN} consecutive steps" in message

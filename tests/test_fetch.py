@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from fftool.artifacts.hashing import sha256_file
 from fftool.cli import app
+from fftool.dataset.fetch import fetch_raw, registry
 from fftool.errors import FetchError
-from fftool.fetch import fetch_raw, registry
-from fftool.hashing import sha256_file
 
 
 class _QuietHandler(SimpleHTTPRequestHandler):

@@ -11,12 +11,12 @@ import torch
 from typer.testing import CliRunner
 
 from fftool import pipeline
+from fftool.artifacts.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, FORCES_INDEX_FILE, WINDOWS_FILE
+from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import ForcesConfig, load_config
-from fftool.maps import apply_homography, read_homography
-from fftool.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, FORCES_INDEX_FILE, WINDOWS_FILE
-from fftool.socialforce import finite_difference_velocity, group_ids, social_forces, window_forces
-from fftool.store import ArtifactStore
+from fftool.dataset.scene_images import apply_homography, read_homography
+from fftool.science.social_forces import finite_difference_velocity, group_ids, social_forces, window_forces
 
 OBS, L = 8, 20
 

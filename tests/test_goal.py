@@ -11,14 +11,16 @@ import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from typer.testing import CliRunner
 
-from fftool import goal, goalnet, pipeline, training
-from fftool.batches import SceneMaps
+from fftool import pipeline
+from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import GoalConfig, GoalsConfig, load_config
 from fftool.errors import IntegrityError
-from fftool.heatmaps import softargmax
-from fftool.store import ArtifactStore
-from fftool.training import save_checkpoint
+from fftool.learning import goal_model, training
+from fftool.learning.batches import SceneMaps
+from fftool.learning.training import save_checkpoint
+from fftool.science.heatmaps import softargmax
+from fftool.stages import goal
 
 from .test_maps import make_scene
 
@@ -40,7 +42,7 @@ def inputs(raw_tree: Path, tmp_path: Path) -> dict:
 def _train(inputs: dict, tmp_path: Path, name: str, cfg: GoalConfig = TINY, on_progress=None) -> dict:
     out = tmp_path / name
     out.mkdir(exist_ok=True)
-    return goal.build(
+    return goal.train(
         cfg,
         SAMPLING,
         "zara1",
@@ -133,7 +135,7 @@ def test_aligned_crops_turn_any_heading_to_plus_col() -> None:
     maps = SceneMaps(torch.zeros(1, 2, 4, 4), torch.zeros(1, 2), 0.5, ())
     cfg = TINY.model_copy(update={"align_heading": True, "cv_channel": True})
     zeros = torch.zeros(2)
-    x, _, _ = goalnet.goal_inputs(paths, torch.zeros(2, dtype=torch.long), maps, cfg, zeros, zeros.bool(), 12)
+    x, _, _ = goal_model.goal_inputs(paths, torch.zeros(2, dtype=torch.long), maps, cfg, zeros, zeros.bool(), 12)
     assert x.shape == (2, 8 + 1 + 2, 16, 16)
     torch.testing.assert_close(x[0], x[1], atol=1e-5, rtol=0)  # the two headings give one picture
     cv_cell = softargmax(torch.log(x[:, 8].clamp_min(1e-30)))  # 12 · 0.1 m = 2.4 cells ahead of 7.5
@@ -162,10 +164,14 @@ def test_a_damaged_resume_checkpoint_is_set_aside_and_the_build_starts_over(
 @pytest.mark.parametrize("tamper", ["garbage", "pickled function", "cvae model"])
 def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: str) -> None:
     path = tmp_path / "model.pt"
-    saved = {"state_dict": goalnet.build_model(TINY, 14).state_dict(), "in_channels": 14, "config": TINY.model_dump()}
+    saved = {
+        "state_dict": goal_model.build_model(TINY, 14).state_dict(),
+        "in_channels": 14,
+        "config": TINY.model_dump(),
+    }
     save_checkpoint(path, saved)
     artifact = type("A", (), {"file": lambda self, name: tmp_path / name})()
-    assert goalnet.load_model(artifact, torch.device("cpu"))[1] == TINY
+    assert goal_model.load_model(artifact, torch.device("cpu"))[1] == TINY
     if tamper == "garbage":
         path.write_bytes(b"garbage!" + path.read_bytes()[8:])
     elif tamper == "pickled function":
@@ -173,7 +179,7 @@ def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: st
     else:
         torch.save({"state_dict": saved["state_dict"], "config": {"d_model": 16, "n_heads": 2}}, path)
     with pytest.raises(IntegrityError) as caught:
-        goalnet.load_model(artifact, torch.device("cpu"))
+        goal_model.load_model(artifact, torch.device("cpu"))
     message = str(caught.value)
     assert message.startswith(f"{path}: not a valid fftool checkpoint, ")
     assert message.endswith("; rebuild it with `fftool train-goal --force`")

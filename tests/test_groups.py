@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from sklearn.cluster import DBSCAN
 
-from fftool.groups import cluster_frames
+from fftool.science.groups import cluster_frames
 
 
 def _partition(labels: np.ndarray) -> set[frozenset[int]]:

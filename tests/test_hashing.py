@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fftool.hashing import canonical_json, fingerprint
+from fftool.artifacts.hashing import canonical_json, fingerprint
 
 params_strategy = st.dictionaries(
     st.text(min_size=1, max_size=8), st.one_of(st.integers(), st.text(max_size=5), st.booleans()), max_size=6

@@ -7,7 +7,8 @@ import math
 import pytest
 import torch
 
-from fftool.heatmaps import (
+from fftool.models import GoalUNet
+from fftool.science.heatmaps import (
     cells_to_world,
     render,
     rotation,
@@ -16,7 +17,6 @@ from fftool.heatmaps import (
     softargmax,
     world_to_cells,
 )
-from fftool.models import GoalUNet
 
 
 def test_crop_transform_round_trips_and_centres() -> None:

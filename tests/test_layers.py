@@ -1,50 +1,104 @@
-"""Structure: leaf modules import nothing from fftool, stage modules never import each other."""
+"""Structure: the package layers (docs/development.md) hold; each rule fails when one import breaks it."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
+import pytest
+
 import fftool
 
 PACKAGE = Path(fftool.__file__).parent
-LEAVES = {"errors", "scenes", "hashing", "ui", "groups"}
-STAGE_MODULES = {"ingest", "windows", "forces", "maps", "goal", "goals", "cvae", "evaluate"}
-ORCHESTRATION = {"pipeline", "cli", "ablation", "__main__"}
+MODULES = {
+    ".".join(path.relative_to(PACKAGE).with_suffix("").parts).removesuffix("__init__").rstrip("."): path
+    for path in PACKAGE.rglob("*.py")
+}
+LEAVES = {"errors", "ui", "paper", "dataset.scenes", "artifacts.hashing", "science.groups"}
+STAGES = {name for name in MODULES if name.startswith("stages.") and name != "stages.contract"}
+# Modules whose job needs no tensors: importing torch at their top would only slow every command down.
+TORCH_FREE = {"errors", "ui", "paper", "config", "pipeline", "cli", "science.groups", "stages.contract"} | {
+    name for name in MODULES if name.startswith(("dataset", "artifacts", "reporting.tables", "reporting.summaries"))
+}
 
 
-def _fftool_imports(module: str) -> set[str]:
-    tree = ast.parse((PACKAGE / f"{module}.py").read_text())
+def _imports(module: str, top_level_only: bool = False) -> set[str]:
+    """fftool modules (dotted, without `fftool.`) and third-party roots that `module` imports."""
+    tree = ast.parse(MODULES[module].read_text())
+    nodes = tree.body if top_level_only else list(ast.walk(tree))
     found = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("fftool"):
+    for node in nodes:
+        if isinstance(node, ast.ImportFrom) and node.module:
             if node.module == "fftool":
                 found.update(alias.name for alias in node.names)
+            elif node.module.startswith("fftool."):
+                name = node.module.removeprefix("fftool.")
+                found.add(name)
+                found.update(f"{name}.{a.name}" for a in node.names if f"{name}.{a.name}" in MODULES)
             else:
-                found.add(node.module.split(".")[1])
+                found.add("ext:" + node.module.split(".")[0])
         elif isinstance(node, ast.Import):
-            found.update(a.name.split(".")[1] for a in node.names if a.name.startswith("fftool."))
-    return found - {"__init__"}
+            for alias in node.names:
+                root = alias.name.removeprefix("fftool.") if alias.name.startswith("fftool.") else None
+                found.add(root if root else "ext:" + alias.name.split(".")[0])
+    return found - {"__version__"}
 
 
-def test_leaves_import_nothing_from_fftool() -> None:
-    for module in LEAVES:
-        assert _fftool_imports(module) <= {"__version__"}, module
+def _package(name: str) -> str:
+    return name.split(".")[0]
 
 
-def test_stage_modules_do_not_import_each_other_or_the_orchestration() -> None:
-    for module in STAGE_MODULES:
-        imported = _fftool_imports(module)
-        assert not imported & (STAGE_MODULES - {module}), f"{module} imports {imported & STAGE_MODULES}"
-        assert not imported & ORCHESTRATION, module
+def test_the_layout_is_the_documented_one() -> None:
+    assert {_package(name) for name in MODULES} == {
+        "",  # fftool/__init__.py
+        "__main__", "errors", "ui", "config", "paper", "pipeline",
+        "artifacts", "dataset", "science", "models", "learning", "stages", "reporting", "cli",
+    }  # fmt: skip
+    assert {
+        f"stages.{kind}" for kind in ("tracks", "windows", "forces", "maps", "goal", "goals", "cvae", "evaluate")
+    } == STAGES
 
 
-def test_only_orchestration_imports_the_cli_or_pipeline() -> None:
-    for path in PACKAGE.glob("*.py"):
-        if path.stem not in ORCHESTRATION:
-            assert not _fftool_imports(path.stem) & {"cli", "pipeline"}, path.stem
+@pytest.mark.parametrize("module", sorted(LEAVES))
+def test_leaves_import_nothing_from_fftool(module: str) -> None:
+    assert not {name for name in _imports(module) if not name.startswith("ext:")}, module
 
 
-def test_the_force_math_depends_only_on_its_config() -> None:
-    # socialforce.py is shared by the forces stage and the model: it must not reach into stages or I/O.
-    assert _fftool_imports("socialforce") == {"config"}
+@pytest.mark.parametrize("module", sorted(name for name in MODULES if name.startswith("models")))
+def test_models_import_nothing_of_fftool(module: str) -> None:
+    assert {name for name in _imports(module) if not name.startswith("ext:")} <= {
+        "models.forceformer",
+        "models.goal_unet",
+    }
+
+
+@pytest.mark.parametrize("module", sorted(STAGES))
+def test_a_stage_imports_no_other_stage_nor_the_layers_above(module: str) -> None:
+    fftool_imports = {name for name in _imports(module) if not name.startswith("ext:")}
+    assert not fftool_imports & (STAGES - {module}), f"{module} imports another stage"
+    assert not {_package(name) for name in fftool_imports} & {"pipeline", "cli", "reporting"}, module
+    assert "STAGE" in MODULES[module].read_text(), f"{module} does not declare its STAGE"
+
+
+@pytest.mark.parametrize("module", sorted(name for name in MODULES if name.startswith("science")))
+def test_the_science_reads_no_files(module: str) -> None:
+    # forces, metrics, geometry: pure functions, shared by the stages and the models; no store, no I/O layers.
+    packages = {_package(name) for name in _imports(module) if not name.startswith("ext:")}
+    assert packages <= {"config", "errors", "science"}, f"{module} imports {packages}"
+
+
+@pytest.mark.parametrize("module", sorted(name for name in MODULES if name.startswith(("learning", "artifacts"))))
+def test_learning_and_artifacts_stay_below_the_stages(module: str) -> None:
+    packages = {_package(name) for name in _imports(module) if not name.startswith("ext:")}
+    assert not packages & {"stages", "pipeline", "reporting", "cli"}, f"{module} imports {packages}"
+
+
+@pytest.mark.parametrize("module", sorted(TORCH_FREE & set(MODULES)))
+def test_torch_free_modules_do_not_import_torch_at_the_top(module: str) -> None:
+    assert "ext:torch" not in _imports(module, top_level_only=True), module
+
+
+def test_only_the_top_layers_import_the_cli_or_the_engine() -> None:
+    for module in MODULES:
+        if _package(module) not in {"cli", "reporting", "__main__", "pipeline"}:
+            assert not {_package(name) for name in _imports(module)} & {"cli", "pipeline"}, module

@@ -11,7 +11,7 @@ import pytest
 
 from fftool.config import MapsConfig
 from fftool.errors import RawDataError
-from fftool.maps import build, build_scene
+from fftool.stages.maps import build_scene, rasterise
 
 # An affine world->pixel matrix like UCY's: 20 px per metre, y up, image 200 × 160.
 MATRIX = np.array([[20.0, 0.0, 10.0], [0.0, -20.0, 150.0], [0.0, 0.0, 1.0]])
@@ -52,13 +52,13 @@ def test_missing_geometry_falls_back_and_bad_matrix_is_an_error(tmp_path: Path) 
     make_scene(tmp_path / "scenes" / "zara1")
     out = tmp_path / "out"
     out.mkdir()
-    stats = build(MapsConfig(colour_clusters=2), tmp_path / "scenes", out)
+    stats = rasterise(MapsConfig(colour_clusters=2), tmp_path / "scenes", out)
     assert list(stats["scenes"]) == ["zara1"] and set(stats["without_geometry"]) == {"eth", "hotel", "univ", "zara2"}
     assert (out / "zara1.npy").is_file() and (out / "zara1_check.png").read_bytes()[:4] == b"\x89PNG"
     assert json.loads((out / "transforms.json").read_text())["channels"][:2] == ["inside", "obstacle"]
     (tmp_path / "scenes" / "zara1" / "world_to_pixel.txt").write_text("1 2\n3 4\n")
     with pytest.raises(RawDataError, match=r"world_to_pixel\.txt: expected an invertible 3×3"):
-        build(MapsConfig(colour_clusters=2), tmp_path / "scenes", out)
+        rasterise(MapsConfig(colour_clusters=2), tmp_path / "scenes", out)
 
 
 @pytest.mark.data

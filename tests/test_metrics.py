@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from fftool.metrics import agent_metrics, collision_count
+from fftool.science.metrics import agent_metrics, collision_count
 
 
 def _line(x0: float, y: float, dx: float = 0.0, steps: int = 4) -> torch.Tensor:

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from fftool import pipeline
+from fftool.artifacts.store import ArtifactStore
 from fftool.config import load_config, predictor_config
-from fftool.store import ArtifactStore
 
 
 @pytest.fixture
@@ -19,9 +19,9 @@ def calls(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     spied = {}
     for name, stage in pipeline.STAGES.items():
 
-        def spy(cfg, inputs, ctx, runtime, benchmark, _build=stage.build, _name=name):
+        def spy(cfg, inputs, ctx, _build=stage.build, _name=name):
             record.append(_name)
-            return _build(cfg, inputs, ctx, runtime, benchmark)
+            return _build(cfg, inputs, ctx)
 
         spied[name] = dataclasses.replace(stage, build=spy)
     monkeypatch.setattr(pipeline, "STAGES", spied)
@@ -76,7 +76,7 @@ def test_manifest_records_parameters_and_inputs(raw_tree: Path, store: ArtifactS
 
 @pytest.mark.parametrize("profile", sorted(Path(__file__).resolve().parents[1].joinpath("pipelines").glob("*.toml")))
 def test_every_shipped_profile_loads_and_plans_the_whole_dag(profile: Path) -> None:
-    from fftool import ablation
+    from fftool.reporting import ablation
 
     cfg = load_config(profile)
     for predictor in ablation.predictors(cfg, cfg.report.variants):

@@ -9,14 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from fftool import cvaenet, pipeline
-from fftool.batches import SceneBatch, load_scene_set
+from fftool import pipeline
+from fftool.artifacts.schema import CVAE_MODEL_FILE
+from fftool.artifacts.store import ArtifactStore
 from fftool.config import CVAEConfig, EvaluateConfig, ForcesConfig, load_config
-from fftool.evaluate import Predictor
-from fftool.protocols import constant_velocity, protocol_goals, with_past_forces
-from fftool.schema import CVAE_MODEL_FILE
-from fftool.store import ArtifactStore
-from fftool.training import save_checkpoint
+from fftool.learning import cvae_model
+from fftool.learning.batches import SceneBatch, load_scene_set
+from fftool.learning.protocols import constant_velocity, protocol_goals, with_past_forces
+from fftool.learning.training import save_checkpoint
+from fftool.stages.evaluate import Predictor
 
 
 def test_paper_protocol_gives_every_sample_the_goal_closest_to_the_truth() -> None:
@@ -50,7 +51,7 @@ def test_past_forces_recomputed_toward_the_true_goal_equal_the_stored_ones(scene
 def _predictor(tmp_path: Path, protocol: str, sampled: np.ndarray) -> Predictor:
     cfg = CVAEConfig(variant="re", d_model=16, n_heads=2, d_ff=32, n_layers=1, z_dim=4, dropout=0.0)
     torch.manual_seed(0)
-    model = cvaenet.build_model(cfg)
+    model = cvae_model.build_model(cfg)
     save_checkpoint(
         tmp_path / CVAE_MODEL_FILE,
         {

@@ -10,12 +10,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fftool import ingest
+from fftool.artifacts.schema import TRACKS_FILE
 from fftool.config import IngestConfig
+from fftool.dataset.rawfiles import RawTable, _read_fast, _read_slow, read_raw
 from fftool.errors import RawDataError
-from fftool.rawfiles import RawTable, _read_fast, _read_slow, read_raw
-from fftool.schema import TRACKS_FILE
-from fftool.windows import slice_sequence
+from fftool.stages import tracks
+from fftool.stages.windows import slice_sequence
 
 from .conftest import walker_rows, write_rows
 
@@ -229,13 +229,13 @@ def test_bom_crlf_and_tabs_give_identical_tracks(tmp_path: Path, raw_tree: Path)
     results = []
     for root, out in ((raw_tree, tmp_path / "out_clean"), (odd_tree, tmp_path / "out_odd")):
         out.mkdir()
-        stats = ingest.build(cfg, root, out)
+        stats = tracks.ingest_raw(cfg, root, out)
         stats["warnings"] = [w.replace(str(root), "<raw>") for w in stats["warnings"]]
         results.append((stats, pq.read_table(out / TRACKS_FILE)))
     (clean_stats, clean_tracks), (odd_stats, odd_tracks) = results
     assert clean_stats == odd_stats and len(clean_stats["warnings"]) >= 1
     assert odd_tracks.equals(clean_tracks)
-    assert ingest.raw_input_hashes(odd_tree) != ingest.raw_input_hashes(raw_tree)  # bytes differ, tracks do not
+    assert tracks.raw_input_hashes(odd_tree) != tracks.raw_input_hashes(raw_tree)  # bytes differ, tracks do not
 
 
 def test_a_far_off_frame_id_does_not_size_the_windows_by_the_gap() -> None:
@@ -252,9 +252,9 @@ def test_ingest_stats_are_exact_for_ids_across_the_whole_int64_range(raw_tree: P
     low, high = -(2**63) + 10, 2**63 - 6  # both ≡ 2 mod 10; their gap does not fit in int64
     path = raw_tree / "all_data" / "biwi_eth.txt"
     path.write_text(f"{low} {2**63 - 1} 1.0 2.0\n{high} {-(2**63)} 1.5 2.0\n")
-    stats = ingest.build(IngestConfig(), raw_tree, tmp_path)
+    stats = tracks.ingest_raw(IngestConfig(), raw_tree, tmp_path)
     file = stats["files"]["all_data/biwi_eth.txt"]
     assert (file["first_frame_id"], file["last_frame_id"], file["observed_stride"]) == (low, high, high - low)
-    tracks = pq.read_table(tmp_path / TRACKS_FILE).to_pandas()
-    rows = tracks[(tracks["source"] == "biwi_eth") & (tracks["split"] == "all")]
+    table = pq.read_table(tmp_path / TRACKS_FILE).to_pandas()
+    rows = table[(table["source"] == "biwi_eth") & (table["split"] == "all")]
     assert rows["ped_id"].tolist() == [2**63 - 1, -(2**63)] and rows["step"].tolist() == [low // 10, high // 10]

@@ -9,10 +9,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from fftool import pipeline
+from fftool.artifacts.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE
+from fftool.artifacts.store import ArtifactStore
 from fftool.config import load_config
-from fftool.scenes import LEAVE_ONE_OUT
-from fftool.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE
-from fftool.store import ArtifactStore
+from fftool.dataset.scenes import LEAVE_ONE_OUT
 
 pytestmark = pytest.mark.data
 
@@ -103,7 +103,7 @@ def test_forces_on_every_agent_window(real_raw: Path, built: dict) -> None:
 
 
 def test_explain_draws_on_the_real_scene(real_raw: Path, built: dict, tmp_path: Path) -> None:
-    from fftool.explain import explain_window
+    from fftool.reporting.explain import explain_window
 
     png = explain_window(
         scene="zara2",

@@ -11,6 +11,7 @@ change only its own folders.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import json
 import os
@@ -27,11 +28,11 @@ import numpy as np
 import pytest
 import torch
 
-import fftool.store
+import fftool.artifacts.store
 from fftool import pipeline
+from fftool.artifacts.hashing import sha256_file
+from fftool.artifacts.store import MANIFEST, ArtifactStore
 from fftool.config import load_config
-from fftool.hashing import sha256_file
-from fftool.store import MANIFEST, ArtifactStore
 
 from .conftest import make_raw_tree, snapshot
 from .test_cli import invoke
@@ -308,9 +309,9 @@ def _verify_chain(w: World, mp: pytest.MonkeyPatch) -> Act:
 def _spy_reads(w: World, mp: pytest.MonkeyPatch) -> list[Path]:
     """Record every folder the store reads a manifest from or hashes."""
     seen: list[Path] = []
-    read, hash_files = ArtifactStore._read, fftool.store._hash_files
+    read, hash_files = ArtifactStore._read, fftool.artifacts.store._hash_files
     mp.setattr(ArtifactStore, "_read", lambda self, folder: (seen.append(Path(folder)), read(self, folder))[1])
-    mp.setattr(fftool.store, "_hash_files", lambda folder: (seen.append(Path(folder)), hash_files(folder))[1])
+    mp.setattr(fftool.artifacts.store, "_hash_files", lambda folder: (seen.append(Path(folder)), hash_files(folder))[1])
     return seen
 
 
@@ -390,14 +391,14 @@ def _new_windows(w: World) -> Act:
 
 
 def _disk_full_hashing(w: World, mp: pytest.MonkeyPatch) -> Act:
-    hash_files = fftool.store._hash_files
+    hash_files = fftool.artifacts.store._hash_files
 
     def full(folder: Path) -> dict[str, Any]:
         if ".incomplete" in Path(folder).parts:  # the new artifact's files; re-hashing inputs still works
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(folder))
         return hash_files(folder)
 
-    mp.setattr(fftool.store, "_hash_files", full)
+    mp.setattr(fftool.artifacts.store, "_hash_files", full)
     return _new_windows(w)
 
 
@@ -418,13 +419,13 @@ def _stage_raises(exc: BaseException) -> Callable[[World, pytest.MonkeyPatch], A
     """The windows stage writes its files, then `exc` is raised inside the build."""
 
     def arrange(w: World, mp: pytest.MonkeyPatch) -> Act:
-        build = pipeline.windows.build
+        stage = pipeline.STAGES["windows"]
 
         def broken(*args: Any, **kwargs: Any) -> dict[str, Any]:
-            build(*args, **kwargs)
+            stage.build(*args, **kwargs)
             raise exc
 
-        mp.setattr(pipeline.windows, "build", broken)
+        mp.setitem(pipeline.STAGES, "windows", dataclasses.replace(stage, build=broken))
         return _new_windows(w)
 
     return arrange
@@ -438,7 +439,7 @@ def _read_only_root(w: World, mp: pytest.MonkeyPatch) -> Act:
             raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(dst))
         replace(src, dst, *args, **kwargs)
 
-    mp.setattr(fftool.store.os, "replace", read_only)
+    mp.setattr(fftool.artifacts.store.os, "replace", read_only)
     return _new_windows(w)
 
 

@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 from typer.testing import CliRunner
 
-from fftool.batches import load_agent_windows
+from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
-from fftool.evaluate import rescore
-from fftool.store import ArtifactStore
+from fftool.learning.batches import load_agent_windows
+from fftool.stages.evaluate import rescore
 from tests.test_maps import make_scene
 
 TINY_PIPELINE = """

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fftool.config import ForcesConfig
-from fftool.socialforce import (
+from fftool.science.social_forces import (
     desired_direction,
     driving_force,
     ellipse_b,

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from fftool.artifacts.store import MANIFEST, ArtifactStore
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
-from fftool.store import MANIFEST, ArtifactStore
 
 FP_A = "a" * 64
 FP_B = "ab" + "c" * 62
@@ -71,7 +71,7 @@ KILLED_BUILD = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from fftool.store import ArtifactStore
+    from fftool.artifacts.store import ArtifactStore
     store = ArtifactStore(sys.argv[1])
     with store.build("demo", "a" * 64, schema_version=1, params={}, inputs={}) as ctx:
         (ctx.dir / "data.txt").write_text("partial")

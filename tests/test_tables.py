@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fftool import tables
-from fftool.scenes import BENCHMARKS
+from fftool.dataset.scenes import BENCHMARKS
+from fftool.reporting import tables
 
 
 def _result(benchmark: str, variant: str, ade: float, fde: float, nc: int) -> dict:

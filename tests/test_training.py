@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from fftool import training
+from fftool.artifacts.schema import TENSORBOARD_DIR
 from fftool.errors import IntegrityError
-from fftool.schema import TENSORBOARD_DIR
-from fftool.training import Progress, fit, model_file, resume, save_checkpoint, save_progress
+from fftool.learning import training
+from fftool.learning.training import Progress, fit, model_file, resume, save_checkpoint, save_progress
 
 
 def _stateful(width: int = 3) -> dict:

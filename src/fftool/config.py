@@ -17,9 +17,9 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
+from fftool.dataset.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Benchmark, Part
 from fftool.errors import ConfigError
-from fftool.published import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
-from fftool.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Benchmark, Part
+from fftool.paper import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -18,10 +18,10 @@ from typing import Final
 import torch
 from torch import Tensor
 
-from fftool.batches import SceneBatch
 from fftool.config import ForcesConfig
+from fftool.learning.batches import SceneBatch
 from fftool.models.forceformer import StepFeatures
-from fftool.socialforce import desired_direction, driving_force, group_pairs, social_forces
+from fftool.science.social_forces import desired_direction, driving_force, group_pairs, social_forces
 
 FEATURE_DIMS: Final = {"baseline": 4, "goal": 8, "dr": 6, "re": 10}
 DECODER_DIMS: Final = {"baseline": 2, "goal": 6, "dr": 4, "re": 8}

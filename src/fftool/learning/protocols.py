@@ -20,10 +20,10 @@ from typing import Final
 import torch
 from torch import Tensor
 
-from fftool.batches import SceneBatch
 from fftool.config import ForcesConfig
 from fftool.errors import FftoolError
-from fftool.socialforce import desired_speed, finite_difference_velocity, group_pairs, social_forces
+from fftool.learning.batches import SceneBatch
+from fftool.science.social_forces import desired_speed, finite_difference_velocity, group_pairs, social_forces
 
 PROTOCOLS: Final = ("paper", "fair", "oracle")
 

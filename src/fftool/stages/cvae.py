@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -23,15 +23,24 @@ from typing import Any, Final
 import numpy as np
 import torch
 
-from fftool.batches import SceneSet, load_scene_set
-from fftool.config import CVAEConfig, ForcesConfig
-from fftool.cvaenet import autocast, build_model, sample
-from fftool.metrics import ade_fde
+from fftool.artifacts.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
+from fftool.artifacts.store import Artifact
+from fftool.config import CVAEConfig, ForcesConfig, PipelineConfig
+from fftool.learning.batches import SceneSet, load_scene_set
+from fftool.learning.cvae_model import autocast, build_model, sample
+from fftool.learning.features import Prepared, decoder_features, prepare
+from fftool.learning.training import (
+    epoch_seed,
+    fit,
+    generator,
+    lr_factor,
+    make_optimizer,
+    optimizer_step,
+    save_checkpoint,
+)
 from fftool.models.forceformer import ForceFormer, LossParts, cvae_loss
-from fftool.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
-from fftool.store import Artifact
-from fftool.training import epoch_seed, fit, generator, lr_factor, make_optimizer, optimizer_step, save_checkpoint
-from fftool.trajfeatures import Prepared, decoder_features, prepare
+from fftool.science.metrics import ade_fde
+from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "cvae"
 VERSION: Final = 1
@@ -212,7 +221,7 @@ def _trainer(
     )
 
 
-def build(
+def train(
     cfg: CVAEConfig,
     forces_cfg: ForcesConfig,
     benchmark: str,
@@ -276,3 +285,31 @@ def build(
         "parameters": sum(p.numel() for p in trainer.model.parameters()),
         "log": progress.log,
     }
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: train one benchmark's CVAE of the configured variant."""
+    return train(
+        cfg.cvae,
+        cfg.forces,
+        ctx.need_benchmark(),
+        inputs["windows"],
+        inputs["forces"],
+        ctx.out_dir,
+        ctx.scratch,
+        ctx.device(),
+        on_progress=ctx.on_progress,
+        on_epoch=ctx.on_epoch,
+    )
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool train-cvae",
+    section=lambda cfg: cfg.cvae,
+    build=build,
+    description=lambda cfg, benchmark: f"train CVAE {cfg.cvae.variant} ({benchmark})",
+    per_benchmark=True,
+)

@@ -14,8 +14,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Final
 
+from fftool.artifacts.hashing import sha256_file
 from fftool.errors import FetchError
-from fftool.hashing import sha256_file
 
 # The Social-GAN text files as redistributed by Trajectron++ (pinned commit, so the bytes never move).
 DEFAULT_BASE_URL: Final = (
@@ -26,7 +26,7 @@ DEFAULT_BASE_URL: Final = (
 
 def registry() -> dict[str, str]:
     """Relative path -> sha256 of every raw file (package data `registry/eth_ucy_raw.txt`)."""
-    text = resources.files("fftool").joinpath("registry/eth_ucy_raw.txt").read_text()
+    text = resources.files("fftool.dataset").joinpath("registry/eth_ucy_raw.txt").read_text()
     pairs = (line.split() for line in text.splitlines() if line.strip() and not line.startswith("#"))
     return {rel: digest for rel, digest in pairs}
 

@@ -14,7 +14,7 @@ from the predicted positions at every decoding step.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from functools import partial
 from pathlib import Path
 from typing import Any, Final
@@ -25,19 +25,21 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.batches import AgentWindows, SceneBatch, SceneSet, load_agent_windows, load_scene_set
+from fftool.artifacts.schema import GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE
+from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import EvaluateConfig, PipelineConfig
-from fftool.cvaenet import load_model, sample
 from fftool.errors import ArtifactMissing, FftoolError
-from fftool.metrics import agent_metrics, collision_count
-from fftool.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
-from fftool.schema import GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE
-from fftool.store import Artifact, ArtifactStore, check_schema
-from fftool.training import generator
-from fftool.trajfeatures import prepare
+from fftool.learning.batches import AgentWindows, SceneBatch, SceneSet, load_agent_windows, load_scene_set
+from fftool.learning.cvae_model import load_model, sample
+from fftool.learning.features import prepare
+from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
+from fftool.learning.training import generator
+from fftool.science.metrics import agent_metrics, collision_count
+from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "evaluate"
 VERSION: Final = 1
+INPUTS: Final = ("windows", "forces", "cvae", "goals")  # at most; `reads` says which, per predictor
 
 METRIC_DEFINITIONS: Final = {
     "min_ade": "mean over agent-windows of min over K samples of the mean over the T future steps of the "
@@ -54,7 +56,7 @@ def reads_goal(cfg: PipelineConfig) -> bool:
     return cfg.evaluate.predictor == "cvae" and cfg.cvae.variant != "baseline"
 
 
-def inputs(cfg: PipelineConfig) -> tuple[str, ...]:
+def reads(cfg: PipelineConfig) -> tuple[str, ...]:
     """Upstream stages of an evaluation: only what its predictor and protocol actually read."""
     if cfg.evaluate.predictor == "cv":
         return ("windows", "forces")
@@ -164,7 +166,7 @@ def _predictions_table(columns: dict[str, np.ndarray], k: int, pred_len: int) ->
     )
 
 
-def build(
+def sample_and_score(
     cfg: EvaluateConfig,
     benchmark: str,
     windows: Artifact,
@@ -306,3 +308,23 @@ def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: fl
     data = load_agent_windows(windows, stats["benchmark"], cfg.part)
     columns = rescore(pd.read_parquet(evaluation.file(PREDICTIONS_FILE)), data, cfg.k, threshold_m)
     return summary(columns, cfg, stats["benchmark"], stats["variant"], stats["protocol"])
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: K futures per test agent-window of one benchmark, and their metrics."""
+    upstream = (inputs["windows"], inputs["forces"], inputs.get("cvae"), inputs.get("goals"))
+    args = (cfg.evaluate, ctx.need_benchmark(), *upstream, ctx.out_dir, ctx.device())
+    return sample_and_score(*args, on_progress=ctx.on_progress)
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool evaluate",
+    section=section,
+    build=build,
+    description=lambda cfg, benchmark: f"evaluate ({benchmark})",
+    per_benchmark=True,
+    needs=reads,
+)

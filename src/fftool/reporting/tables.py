@@ -15,8 +15,8 @@ from typing import Any
 
 import pandas as pd
 
-from fftool.published import PAPER_NAMES, PREDICTORS, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
-from fftool.scenes import BENCHMARKS
+from fftool.dataset.scenes import BENCHMARKS
+from fftool.paper import PAPER_NAMES, PREDICTORS, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ an interrupted run resumes where it stopped.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -18,14 +18,12 @@ from typing import Any, Final
 import numpy as np
 import torch
 
-from fftool.batches import AgentWindows, SceneMaps, load_agent_windows, load_scene_maps
-from fftool.config import GoalConfig, GoalsConfig
-from fftool.goalnet import build_model, evaluate, goal_inputs, goal_loss, input_channels
-from fftool.heatmaps import world_to_cells
-from fftool.models import GoalUNet
-from fftool.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
-from fftool.store import Artifact
-from fftool.training import (
+from fftool.artifacts.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
+from fftool.artifacts.store import Artifact
+from fftool.config import GoalConfig, GoalsConfig, PipelineConfig
+from fftool.learning.batches import AgentWindows, SceneMaps, load_agent_windows, load_scene_maps
+from fftool.learning.goal_model import build_model, evaluate, goal_inputs, goal_loss, input_channels
+from fftool.learning.training import (
     epoch_seed,
     fit,
     generator,
@@ -35,6 +33,9 @@ from fftool.training import (
     save_checkpoint,
     seed_all,
 )
+from fftool.models import GoalUNet
+from fftool.science.heatmaps import world_to_cells
+from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "goal"
 VERSION: Final = 1
@@ -138,7 +139,7 @@ def _trainer(
     )
 
 
-def build(
+def train(
     cfg: GoalConfig,
     goals_cfg: GoalsConfig,
     benchmark: str,
@@ -201,3 +202,31 @@ def build(
         "seconds_this_run": time.perf_counter() - started,
         "log": progress.log,
     }
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: train one benchmark's goal U-Net."""
+    return train(
+        cfg.goal,
+        cfg.goals,
+        ctx.need_benchmark(),
+        inputs["windows"],
+        inputs["maps"],
+        ctx.out_dir,
+        ctx.scratch,
+        ctx.device(),
+        on_progress=ctx.on_progress,
+        on_epoch=ctx.on_epoch,
+    )
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool train-goal",
+    section=lambda cfg: cfg.goal,
+    build=build,
+    description=lambda cfg, benchmark: f"train goal U-Net ({benchmark})",
+    per_benchmark=True,
+)

@@ -7,7 +7,7 @@ Reads: goal (the model), windows, maps. Writes: `goals/<fp>/goals.npy` (M, K, 2)
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Final
 
@@ -16,21 +16,22 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.batches import load_agent_windows, load_scene_maps
-from fftool.config import GoalsConfig
-from fftool.goalnet import load_model, predict_goals
-from fftool.metrics import goal_fde
-from fftool.protocols import constant_velocity
-from fftool.schema import CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE
-from fftool.store import Artifact
-from fftool.training import generator
+from fftool.artifacts.schema import CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE
+from fftool.artifacts.store import Artifact
+from fftool.config import GoalsConfig, PipelineConfig
+from fftool.learning.batches import load_agent_windows, load_scene_maps
+from fftool.learning.goal_model import load_model, predict_goals
+from fftool.learning.protocols import constant_velocity
+from fftool.learning.training import generator
+from fftool.science.metrics import goal_fde
+from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "goals"
 VERSION: Final = 1
 INPUTS: Final = ("goal", "windows", "maps")
 
 
-def build(
+def sample(
     cfg: GoalsConfig,
     benchmark: str,
     goal: Artifact,
@@ -96,3 +97,21 @@ def build(
     np.save(out_dir / CV_GOALS_FILE, np.concatenate(all_cv).astype(np.float32))
     pq.write_table(pa.concat_tables(index), out_dir / GOALS_INDEX_FILE)
     return {"benchmark": benchmark, "k": cfg.k, "method": cfg.method, "device": str(device), "parts": parts}
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: K goals per agent-window of one benchmark."""
+    upstream = (inputs["goal"], inputs["windows"], inputs["maps"])
+    return sample(cfg.goals, ctx.need_benchmark(), *upstream, ctx.out_dir, ctx.device(), on_progress=ctx.on_progress)
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool sample-goals",
+    section=lambda cfg: cfg.goals,
+    build=build,
+    description=lambda cfg, benchmark: f"sample goals ({benchmark})",
+    per_benchmark=True,
+)

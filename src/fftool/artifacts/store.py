@@ -28,7 +28,7 @@ from filelock import FileLock
 
 from fftool import __version__
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
-from fftool.hashing import sha256_file
+from fftool.artifacts.hashing import sha256_file
 from fftool.ui import warn
 
 MANIFEST = "manifest.json"

@@ -10,6 +10,7 @@ pedestrians or steps.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -17,11 +18,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from fftool.config import WindowsConfig
+from fftool.artifacts.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE, WINDOWS_SCHEMA, agent_windows_schema
+from fftool.artifacts.store import Artifact
+from fftool.config import PipelineConfig, WindowsConfig
+from fftool.dataset.scenes import BENCHMARKS, LEAVE_ONE_OUT, PARTS
 from fftool.errors import FftoolError
-from fftool.scenes import BENCHMARKS, LEAVE_ONE_OUT, PARTS
-from fftool.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE, WINDOWS_SCHEMA, agent_windows_schema
-from fftool.store import Artifact
+from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "windows"
 VERSION: Final = 1
@@ -113,7 +115,7 @@ def _present_counts(step: np.ndarray, ped_id: np.ndarray, window_first: np.ndarr
     return (inside > 0).sum(axis=0).astype(np.int32)
 
 
-def build(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
+def slice_all(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
     """Write windows.parquet and agent_windows.parquet for every benchmark part; return the summary.
 
     Args:
@@ -218,3 +220,19 @@ def _assemble(
         schema=agent_windows_schema(window_len),
     )
     return windows, agents
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: every benchmark part's windows and agent-windows from the tracks."""
+    return slice_all(cfg.windows, inputs["tracks"], ctx.out_dir)
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool ingest",
+    section=lambda cfg: cfg.windows,
+    build=build,
+    description=lambda cfg, benchmark: "windows",
+)

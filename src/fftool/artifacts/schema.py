@@ -9,7 +9,7 @@ from typing import Final
 
 import pyarrow as pa
 
-from fftool.scenes import WINDOW_LEN
+from fftool.dataset.scenes import WINDOW_LEN
 
 # --- tracks artifact ------------------------------------------------------------------------------
 TRACKS_FILE: Final = "tracks.parquet"

@@ -21,13 +21,13 @@ import numpy as np
 import pandas as pd
 
 from fftool import __version__
-from fftool.batches import AgentWindows, load_agent_windows
+from fftool.artifacts.schema import PREDICTIONS_FILE
+from fftool.artifacts.store import Artifact
+from fftool.dataset.scene_images import SceneImage, project, read_scene
+from fftool.dataset.scenes import SOURCE_SCENE
 from fftool.errors import FftoolError, UsageError
-from fftool.maps import SceneImage, project, read_scene
-from fftool.published import PAPER_NAMES
-from fftool.scenes import SOURCE_SCENE
-from fftool.schema import PREDICTIONS_FILE
-from fftool.store import Artifact
+from fftool.learning.batches import AgentWindows, load_agent_windows
+from fftool.paper import PAPER_NAMES
 
 SOFTWARE = f"fftool {__version__}"  # PNG metadata: marks a figure fftool may overwrite
 COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff7f0e", "re": "#d62728"}

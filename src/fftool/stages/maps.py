@@ -15,18 +15,21 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
 
 import cv2
 import numpy as np
 
-from fftool.config import MapsConfig
-from fftool.errors import RawDataError
-from fftool.hashing import sha256_file
-from fftool.scenes import SCENES
-from fftool.schema import MAPS_TRANSFORMS_FILE, map_check_file, map_file
+from fftool.artifacts.hashing import sha256_file
+from fftool.artifacts.schema import MAPS_TRANSFORMS_FILE, map_check_file, map_file
+from fftool.artifacts.store import Artifact
+from fftool.config import MapsConfig, PipelineConfig
+from fftool.dataset.scene_images import apply_homography, read_image, read_scene
+from fftool.dataset.scenes import SCENES
+from fftool.stages.contract import Stage, StageContext
+from fftool.ui import warn
 
 NAME: Final = "maps"
 VERSION: Final = 1
@@ -46,53 +49,6 @@ def scene_input_hashes(scenes_dir: Path) -> dict[str, str]:
 
 def channel_names(cfg: MapsConfig) -> list[str]:
     return ["inside", "obstacle", *(f"colour{k}" for k in range(cfg.colour_clusters))]
-
-
-def read_homography(path: Path) -> np.ndarray:
-    """A scene's world->pixel matrix, checked: 3×3, finite and invertible (RawDataError otherwise)."""
-    try:
-        matrix = np.loadtxt(path)
-    except ValueError as exc:
-        raise RawDataError(path, f"expected a 3×3 matrix of numbers ({exc})") from exc
-    if matrix.shape != (3, 3) or not np.isfinite(matrix).all() or abs(np.linalg.det(matrix)) < 1e-12:
-        raise RawDataError(path, f"expected an invertible 3×3 world->pixel matrix, found shape {matrix.shape}")
-    return matrix
-
-
-def apply_homography(matrix: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(..., 2) points through a 3×3 homography: p = M [x, y, 1], (u, v) = p[:2] / p[2]."""
-    homogeneous = np.concatenate([xy, np.ones((*xy.shape[:-1], 1))], axis=-1) @ matrix.T
-    return homogeneous[..., :2] / homogeneous[..., 2:3]
-
-
-def _read_image(path: Path, flags: int) -> np.ndarray:
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        raise RawDataError(path, "not a readable image")
-    return image
-
-
-@dataclass(frozen=True)
-class SceneImage:
-    """A scene's reference image (H, W, 3 RGB) and its world->pixel homography (3, 3)."""
-
-    image: np.ndarray
-    homography: np.ndarray
-
-
-def read_scene(scene_dir: Path) -> SceneImage | None:
-    """The image and homography of a scene folder; None when it lacks either file (a scene without geometry:
-    its crops get no map and its figures are drawn in metres)."""
-    image, matrix = scene_dir / "reference.png", scene_dir / "world_to_pixel.txt"
-    if not (image.is_file() and matrix.is_file()):
-        return None
-    homography = read_homography(matrix)
-    return SceneImage(cv2.cvtColor(_read_image(image, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB), homography)
-
-
-def project(scene: SceneImage | None, xy: np.ndarray) -> np.ndarray:
-    """(..., 2) world metres -> pixels of the scene's image; the metres unchanged for a scene without one."""
-    return xy if scene is None else apply_homography(scene.homography, xy)
 
 
 def build_scene(
@@ -120,7 +76,7 @@ def build_scene(
     inside = inside > 127
     obstacle = np.zeros((height, width), np.float32)
     if (scene_dir / "obstacle_map.png").is_file():
-        gray = _read_image(scene_dir / "obstacle_map.png", cv2.IMREAD_GRAYSCALE)
+        gray = read_image(scene_dir / "obstacle_map.png", cv2.IMREAD_GRAYSCALE)
         obstacle = cv2.warpPerspective(gray, cell_to_pixel, (width, height), flags=flags | cv2.INTER_NEAREST) > 127
         obstacle = obstacle.astype(np.float32)
 
@@ -181,7 +137,7 @@ def _check_figure(
     os.replace(partial, out)
 
 
-def build(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any]:
+def rasterise(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any]:
     """One raster per scene with geometry; transforms.json; check PNGs. Returns the manifest stats.
 
     Args:
@@ -208,3 +164,23 @@ def build(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any]:
         "without_geometry": missing,
         "warnings": [f"scene {s}: no reference.png + world_to_pixel.txt; its crops have no map" for s in missing],
     }
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: one raster per scene of `data.scenes_dir`."""
+    stats = rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.out_dir)
+    for message in stats["warnings"]:
+        warn(message)
+    return stats
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool maps",
+    section=lambda cfg: cfg.maps,
+    build=build,
+    description=lambda cfg, benchmark: "scene maps",
+    external_inputs=lambda cfg: scene_input_hashes(Path(cfg.data.scenes_dir)),
+)

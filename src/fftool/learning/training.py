@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
+from fftool.artifacts.schema import TENSORBOARD_DIR
 from fftool.errors import IntegrityError
-from fftool.schema import TENSORBOARD_DIR
 from fftool.ui import warn
 
 # What loading a readable checkpoint into objects it does not fit raises (missing or extra keys, other

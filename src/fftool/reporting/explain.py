@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
+from fftool.artifacts.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, TRACKS_FILE, WINDOWS_FILE
+from fftool.artifacts.store import Artifact
+from fftool.dataset.scene_images import project, read_scene
+from fftool.dataset.scenes import BENCHMARK_TEST_SOURCES
 from fftool.errors import FftoolError
-from fftool.maps import project, read_scene
-from fftool.scenes import BENCHMARK_TEST_SOURCES
-from fftool.schema import AGENT_WINDOWS_FILE, FORCES_ARRAYS, TRACKS_FILE, WINDOWS_FILE
-from fftool.store import Artifact
 
 
 def _find_window(windows: Artifact, scene: str, frame_id: int, source: str | None) -> tuple[int, str, int]:
@@ -60,7 +60,7 @@ def explain_window(
     """Render the window ending at `frame_id` of `scene`'s test recording to a PNG; return its path."""
     import matplotlib.pyplot as plt
 
-    from fftool.plots import save_figure  # sets the Agg backend
+    from fftool.reporting.plots import save_figure  # sets the Agg backend
 
     window_id, source, t0_step = _find_window(windows, scene, frame_id, source)
     obs_len = int(windows.manifest.stats["obs_len"])

@@ -11,9 +11,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from fftool.batches import AgentWindows, SceneMaps
+from fftool.artifacts.schema import GOAL_MODEL_FILE
+from fftool.artifacts.store import Artifact
 from fftool.config import GoalConfig, GoalsConfig
-from fftool.heatmaps import (
+from fftool.learning.batches import AgentWindows, SceneMaps
+from fftool.learning.training import generator, model_file
+from fftool.models import GoalUNet
+from fftool.science.heatmaps import (
     cells_to_world,
     constant_velocity_cells,
     gaussian_target,
@@ -24,11 +28,7 @@ from fftool.heatmaps import (
     softargmax,
     world_to_cells,
 )
-from fftool.metrics import goal_fde
-from fftool.models import GoalUNet
-from fftool.schema import GOAL_MODEL_FILE
-from fftool.store import Artifact
-from fftool.training import generator, model_file
+from fftool.science.metrics import goal_fde
 
 
 def input_channels(cfg: GoalConfig, obs_len: int, map_channels: int) -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 from rich import box
 from rich.table import Table
 
-from fftool.store import Artifact
+from fftool.artifacts.store import Artifact
 
 
 def _benchmark_part_table(title: str, columns: tuple[str, ...], rows: list[tuple[str, str, list[str]]]) -> Table:
@@ -141,7 +141,7 @@ def training_table(artifact: Artifact, what: str) -> Table:
 
 def goal_fde_table(goals: dict[str, Artifact]) -> Table:
     """Test goal-FDE@K per benchmark beside the constant-velocity reference and the published anchors."""
-    from fftool.scenes import PUBLISHED_GOAL_FDE20
+    from fftool.dataset.scenes import PUBLISHED_GOAL_FDE20
 
     first = next(iter(goals.values())).manifest.stats
     k = first["k"]

@@ -9,12 +9,12 @@ from typing import NamedTuple
 
 import torch
 
+from fftool.artifacts.schema import CVAE_MODEL_FILE
+from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig
+from fftool.learning.features import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features
+from fftool.learning.training import model_file
 from fftool.models.forceformer import ForceFormer, Gaussian
-from fftool.schema import CVAE_MODEL_FILE
-from fftool.store import Artifact
-from fftool.training import model_file
-from fftool.trajfeatures import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features
 
 
 def build_model(cfg: CVAEConfig) -> ForceFormer:

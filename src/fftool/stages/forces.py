@@ -2,7 +2,7 @@
 
 Reads: tracks (all positions, for DBSCAN groups and neighbours) and windows. Writes:
 `forces/<fp>/` with index.parquet and memory-mappable .npy arrays (see schema.FORCES_ARRAYS).
-Run: `fftool forces`. The math lives in `fftool.socialforce`; this module only orchestrates.
+Run: `fftool forces`. The math lives in `fftool.science.social_forces`; this module only orchestrates.
 
 A window's features depend only on its own 20 steps, so each distinct window (source, split, start)
 is computed once and shared by every benchmark part that contains it.
@@ -11,7 +11,7 @@ is computed once and shared by every benchmark part that contains it.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -22,19 +22,20 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.batches import pair_budget_batches
-from fftool.config import ForcesConfig
-from fftool.errors import FftoolError
-from fftool.groups import cluster_frames
-from fftool.schema import (
+from fftool.artifacts.schema import (
     AGENT_WINDOWS_FILE,
     FORCES_ARRAYS,
     FORCES_INDEX_FILE,
     TRACKS_FILE,
     WINDOWS_FILE,
 )
-from fftool.socialforce import group_ids, window_forces
-from fftool.store import Artifact
+from fftool.artifacts.store import Artifact
+from fftool.config import ForcesConfig, PipelineConfig
+from fftool.errors import FftoolError
+from fftool.learning.batches import pair_budget_batches
+from fftool.science.groups import cluster_frames
+from fftool.science.social_forces import group_ids, window_forces
+from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "forces"
 VERSION: Final = 2  # 2: the time step used is recorded in the stats (dt_s) for the model's decoder
@@ -167,7 +168,7 @@ def _slots(actors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return slot_ped, mask
 
 
-def build(
+def compute(
     cfg: ForcesConfig,
     tracks: Artifact,
     windows: Artifact,
@@ -276,3 +277,28 @@ def _summary(
             }
         )
     return summary
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: social forces of every agent-window, one recording at a time."""
+    total = len({source for row in inputs["windows"].manifest.stats["summary"] for source in row["sources"]})
+    done = iter(range(1, total + 1))
+    return compute(
+        cfg.forces,
+        inputs["tracks"],
+        inputs["windows"],
+        ctx.out_dir,
+        device=ctx.device(),
+        on_sequence=lambda name, _: ctx.on_progress(f"social forces: {name}", next(done), total),
+    )
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool forces",
+    section=lambda cfg: cfg.forces,
+    build=build,
+    description=lambda cfg, benchmark: "social forces",
+)

@@ -14,9 +14,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import torch
 
-from fftool.scenes import SOURCE_SCENE
-from fftool.schema import AGENT_WINDOWS_FILE, MAPS_TRANSFORMS_FILE, WINDOWS_FILE, map_file
-from fftool.store import Artifact
+from fftool.artifacts.schema import AGENT_WINDOWS_FILE, MAPS_TRANSFORMS_FILE, WINDOWS_FILE, map_file
+from fftool.artifacts.store import Artifact
+from fftool.dataset.scenes import SOURCE_SCENE
 
 
 @dataclass(frozen=True)
@@ -218,7 +218,7 @@ class SceneSet:
 
 def load_scene_set(windows: Artifact, forces: Artifact, benchmark: str, part: str, stride: int = 1) -> SceneSet:
     """A benchmark part's windows with the forces of each agent-window (rows align by construction)."""
-    from fftool.schema import FORCES_ARRAYS
+    from fftool.artifacts.schema import FORCES_ARRAYS
 
     data = load_agent_windows(windows, benchmark, part, stride)
     arrays = {name: np.load(forces.file(file), mmap_mode="r")[data.row] for name, file in FORCES_ARRAYS.items()}

@@ -14,15 +14,19 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from fftool.config import IngestConfig
+from fftool.artifacts.hashing import sha256_file
+from fftool.artifacts.schema import TRACKS_FILE, TRACKS_SCHEMA
+from fftool.artifacts.store import Artifact
+from fftool.config import IngestConfig, PipelineConfig
+from fftool.dataset.rawfiles import RawTable, read_raw
+from fftool.dataset.scenes import SOURCES, SPLITS, raw_relpath
 from fftool.errors import RawDataError
-from fftool.hashing import sha256_file
-from fftool.rawfiles import RawTable, read_raw
-from fftool.scenes import SOURCES, SPLITS, raw_relpath
-from fftool.schema import TRACKS_FILE, TRACKS_SCHEMA
+from fftool.stages.contract import Stage, StageContext
+from fftool.ui import warn
 
 NAME: Final = "tracks"
 VERSION: Final = 1
+INPUTS: Final = ()
 
 
 def raw_files(raw_dir: Path) -> dict[tuple[str, str], Path]:
@@ -58,7 +62,7 @@ def _check_train_val(tables: Mapping[tuple[str, str], RawTable]) -> list[str]:
     return warnings
 
 
-def build(
+def ingest_raw(
     cfg: IngestConfig,
     raw_dir: Path,
     out_dir: Path,
@@ -117,3 +121,27 @@ def build(
         "files": files,
         "warnings": warnings,
     }
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: validate the raw files of `data.raw_dir` into `tracks.parquet`."""
+    files = len(SOURCES) * len(SPLITS)
+    done = iter(range(1, files + 1))
+    stats = ingest_raw(
+        cfg.ingest, Path(cfg.data.raw_dir), ctx.out_dir, on_file=lambda name: ctx.on_progress(name, next(done), files)
+    )
+    for message in stats["warnings"]:
+        warn(message)
+    return stats
+
+
+STAGE = Stage(
+    NAME,
+    VERSION,
+    INPUTS,
+    command="fftool ingest",
+    section=lambda cfg: cfg.ingest,
+    build=build,
+    description=lambda cfg, benchmark: "ingest raw files",
+    external_inputs=lambda cfg: raw_input_hashes(Path(cfg.data.raw_dir)),
+)

@@ -18,11 +18,12 @@ from typing import Any
 
 import torch
 
-from fftool import __version__, pipeline, tables
+from fftool import __version__, pipeline
+from fftool.artifacts.store import ArtifactStore
 from fftool.config import PipelineConfig, predictor_config
 from fftool.errors import UsageError
-from fftool.published import PREDICTORS
-from fftool.store import ArtifactStore
+from fftool.paper import PREDICTORS
+from fftool.reporting import tables
 
 
 def predictors(cfg: PipelineConfig, variants: Iterable[str]) -> list[str]:
@@ -65,7 +66,7 @@ def run(
 
 def figures(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
     """A report's figures: the density curves of every predictor, the qualitative panels of all but cv."""
-    from fftool import plots
+    from fftool.reporting import plots
 
     windows_ids = {r["windows"] for r in results}
     if len(windows_ids) != 1:

@@ -1,0 +1,179 @@
+"""Commands over many artifacts: `reproduce` (alias `ablate`), `plot` and `rescore`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from fftool.cli.app import (
+    BenchmarkOption,
+    ConfigOption,
+    DeviceOption,
+    OptionalBenchmarks,
+    OutOption,
+    ProtocolOption,
+    RootOption,
+    SetOption,
+    VariantsOption,
+    app,
+    boundary,
+    build_stages,
+    check_predictor,
+    check_threshold,
+    open_store,
+)
+
+
+def reproduce(
+    pipeline_file: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="PIPELINE",
+            exists=True,
+            dir_okay=False,
+            help="A profile in pipelines/ (or -c). Default: the built-in defaults (the paper's configuration).",
+            show_default=False,
+        ),
+    ] = None,
+    benchmarks: OptionalBenchmarks = None,
+    variants: VariantsOption = None,
+    protocol: ProtocolOption = None,
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    out: OutOption = None,
+) -> None:
+    """The whole DAG from raw files to Tables II-IV (md, csv, tex) and figures; built stages are reused.
+
+    Trains and evaluates whatever is missing for the baseline, the chosen variants and constant velocity.
+    """
+    import time
+
+    from fftool import pipeline
+    from fftool.config import load_config
+    from fftool.errors import UsageError
+    from fftool.reporting import ablation
+    from fftool.reporting.summaries import report_tables, run_summary
+    from fftool.ui import log, out_console
+
+    if pipeline_file and config and pipeline_file.resolve() != config.resolve():
+        raise UsageError(f"two pipelines given ({pipeline_file} and -c {config}); give one")
+    profile_file = pipeline_file or config
+    started = time.perf_counter()
+    cfg = load_config(profile_file, set_, {"evaluate.protocol": protocol} if protocol else None)
+    store = open_store(root)
+    profile = profile_file.stem if profile_file else "defaults"
+    reports_dir = store.root / cfg.report.out_dir  # an absolute out_dir replaces the root
+    out_dir = ablation.check_report_folder(out or reports_dir / profile, store.root, reports_dir)  # before any work
+    results = ablation.run(
+        cfg,
+        store,
+        pipeline.Runtime(device=device),
+        benchmarks.split(",") if benchmarks else list(cfg.report.benchmarks),
+        [v for v in (variants.split(",") if variants is not None else cfg.report.variants) if v],
+        on_cell=lambda b, p: log(f"[bold]{b} / {p}[/]"),
+    )
+    command = "fftool " + " ".join(sys.argv[1:])
+    draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
+    report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started, draw)
+    for table in [*report_tables(report.parent), run_summary(results)]:
+        out_console.print(table)
+    log(f"report: {report} ({(time.perf_counter() - started) / 60:.1f} min)")
+
+
+_REPRODUCE_EXAMPLES = (
+    "Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # ~11 min on a 2-core CPU\n\n"
+    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # longer CPU training\n\n"
+    "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU\n\n"
+    "  fftool ablate -c pipelines/quick.toml --variants dr --protocol fair --out fair/"
+)
+app.command(epilog=_REPRODUCE_EXAMPLES)(boundary(reproduce))
+app.command(
+    "ablate",
+    epilog=_REPRODUCE_EXAMPLES,
+    help="The same command as `fftool reproduce` (its older name): Tables II-IV from the whole DAG.",
+)(boundary(reproduce))
+
+
+@app.command(
+    epilog="Examples:\n\n  fftool plot --benchmark zara1 --variants baseline,dr,re -c pipelines/quick.toml\n\n"
+    "  fftool plot --benchmark eth --windows 12,40 --best --out figures/"
+)
+@boundary
+def plot(
+    benchmark: BenchmarkOption = "zara1",
+    variants: Annotated[
+        str, typer.Option("--variants", help="Predictors side by side: baseline, goal, dr, re, cv.")
+    ] = "baseline,dr,re",
+    windows: Annotated[
+        str | None,
+        typer.Option("--windows", help="Comma-separated window ids. Default: where the predictors differ most."),
+    ] = None,
+    count: Annotated[int, typer.Option("--count", min=1, help="Windows to pick when --windows is not given.")] = 3,
+    best: Annotated[bool, typer.Option("--best", help="Draw each agent's best-ADE sample only, not all K.")] = False,
+    protocol: ProtocolOption = None,
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    out: Annotated[Path, typer.Option("--out", file_okay=False, help="Folder for the PNG files.")] = Path("figures"),
+) -> None:
+    """Draw predictions over the scene image (like the paper's Fig. 3) and minFDE/collisions vs density.
+
+    Reads the saved predictions of each predictor's evaluation (evaluated first if only the model exists).
+    """
+    from fftool.config import load_config, predictor_config
+    from fftool.reporting import plots
+    from fftool.ui import log
+
+    predictors = [check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
+    cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
+    built = [
+        build_stages(predictor_config(cfg, predictor), ["evaluate"], root, False, device, benchmark)
+        for predictor in predictors
+    ]
+    written = plots.figures(
+        {benchmark: [plots.Evaluation.of(b["evaluate"]) for b in built]},
+        built[0]["windows"],
+        cfg.evaluate.part,
+        Path(cfg.data.scenes_dir),
+        out,
+        density_file=f"density_{benchmark}.png",
+        window_ids=[int(w) for w in windows.split(",")] if windows else None,
+        count=count,
+        best_only=best,
+    )
+    log(f"wrote {', '.join(map(str, written))}")
+
+
+@app.command(epilog="Example: fftool rescore evaluate/3f9c2a --threshold 0.2")
+@boundary
+def rescore(
+    artifact_id: Annotated[
+        str,
+        typer.Argument(
+            metavar="ID", help="An evaluate artifact: evaluate/fingerprint-prefix, or evaluate (the newest)."
+        ),
+    ],
+    threshold: Annotated[
+        float,
+        typer.Option(
+            "--threshold",
+            help="Collision threshold γ in metres (evaluate.collision_threshold_m).",
+            callback=check_threshold,
+        ),
+    ],
+    root: RootOption = None,
+) -> None:
+    """Re-score an evaluation's saved predictions at another collision threshold, without sampling again."""
+    from fftool.reporting.summaries import rescore_table
+    from fftool.stages.evaluate import rescore_artifact
+    from fftool.ui import out_console
+
+    store = open_store(root)
+    evaluation = store.resolve(artifact_id)
+    out_console.print(rescore_table(evaluation, rescore_artifact(store, evaluation, threshold)))
