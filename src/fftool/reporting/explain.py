@@ -7,6 +7,7 @@ frame id of the last observed step). People understand forces by looking at them
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -44,24 +45,23 @@ def _find_window(windows: Artifact, scene: str, frame_id: int, source: str | Non
     return int(row["window_id"]), str(row["source"]), int(row["t0_step"])
 
 
-def explain_window(
-    *,
-    scene: str,
-    frame_id: int,
-    out: Path,
-    windows: Artifact,
-    forces: Artifact,
-    tracks: Artifact,
-    scenes_dir: Path,
-    source: str | None = None,
-    dr_scale_s2: float = 2.0,
-    re_scale_s2: float = 10.0,
-) -> Path:
-    """Render the window ending at `frame_id` of `scene`'s test recording to a PNG; return its path."""
-    import matplotlib.pyplot as plt
+@dataclass(frozen=True)
+class _Window:
+    """One test window's observed paths (A, T, 2), forces and groups at the last observed step, and the
+    other pedestrians present then (not valid agent-windows themselves)."""
 
-    from fftool.reporting.plots import save_figure  # sets the Agg backend
+    source: str
+    obs_len: int
+    xy: np.ndarray
+    f_dr: np.ndarray
+    f_re: np.ndarray
+    group: np.ndarray
+    bystanders: np.ndarray
 
+
+def _read_window(
+    scene: str, frame_id: int, windows: Artifact, forces: Artifact, tracks: Artifact, source: str | None
+) -> _Window:
     window_id, source, t0_step = _find_window(windows, scene, frame_id, source)
     obs_len = int(windows.manifest.stats["obs_len"])
     agents = pq.read_table(windows.file(AGENT_WINDOWS_FILE), columns=["benchmark", "part", "window_id", "ped_id", "xy"])
@@ -80,7 +80,30 @@ def explain_window(
         tracks.file(TRACKS_FILE), filters=[("source", "=", source), ("split", "=", "all"), ("step", "=", t0_step)]
     ).to_pandas()
     bystanders = bystanders[~bystanders["ped_id"].isin(ped_ids)][["x", "y"]].to_numpy()
+    return _Window(source, obs_len, xy, f_dr, f_re, group, bystanders)
 
+
+def explain_window(
+    *,
+    scene: str,
+    frame_id: int,
+    out: Path,
+    windows: Artifact,
+    forces: Artifact,
+    tracks: Artifact,
+    scenes_dir: Path,
+    source: str | None = None,
+    dr_scale_s2: float = 2.0,
+    re_scale_s2: float = 10.0,
+) -> Path:
+    """Render the window ending at `frame_id` of `scene`'s test recording to a PNG; return its path."""
+    import matplotlib.pyplot as plt
+
+    from fftool.reporting.plots import save_figure  # sets the Agg backend
+
+    window = _read_window(scene, frame_id, windows, forces, tracks, source)
+    xy, f_dr, f_re, group, bystanders = window.xy, window.f_dr, window.f_re, window.group, window.bystanders
+    obs_len, source = window.obs_len, window.source
     now = xy[:, obs_len - 1]
     background = read_scene(scenes_dir / scene)  # None: draw in metres
     pixels = partial(project, background)
@@ -92,7 +115,7 @@ def explain_window(
     if len(bystanders):
         ax.scatter(*pixels(bystanders).T, s=18, c="lightgrey", edgecolors="black", lw=0.5, label="others present")
     ax.scatter(*pixels(now).T, s=36, c="yellow", edgecolors="black", lw=0.7, zorder=3, label="valid pedestrians")
-    for a, b in itertools.combinations(range(len(rows)), 2):
+    for a, b in itertools.combinations(range(len(xy)), 2):
         if group[a] >= 0 and group[a] == group[b]:
             ax.plot(*pixels(now[[a, b]]).T, ls="--", color="cyan", lw=1.5, zorder=2)
     for force, scale, color, name in ((f_dr, dr_scale_s2, "lime", "F_dr"), (f_re, re_scale_s2, "red", "F_re")):

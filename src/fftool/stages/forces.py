@@ -168,6 +168,26 @@ def _slots(actors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return slot_ped, mask
 
 
+def _scatter(
+    results: dict[tuple[str, str], _Features], window_table: pd.DataFrame, agents: pd.DataFrame
+) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+    """The per-recording results in the row order of agent_windows.parquet (a recording serves many parts)."""
+    keys = pd.concat(
+        [
+            pd.DataFrame({"source": s, "split": p, "first_step": r.first_step, "ped_id": r.ped_id})
+            for (s, p), r in results.items()
+        ],
+        ignore_index=True,
+    )
+    keys["feature_row"] = np.arange(len(keys))
+    rows = agents.merge(window_table, on=["benchmark", "part", "window_id"], how="left", sort=False)
+    rows["source"], rows["split"] = rows["source"].astype(str), rows["split"].astype(str)
+    rows = rows.merge(keys, on=["source", "split", "first_step", "ped_id"], how="left", sort=False)
+    assert rows["feature_row"].notna().all(), "every valid agent-window must have features"
+    take = rows["feature_row"].to_numpy(dtype=np.int64)
+    return rows, {name: np.concatenate([r.arrays[name] for r in results.values()])[take] for name in FORCES_ARRAYS}
+
+
 def compute(
     cfg: ForcesConfig,
     tracks: Artifact,
@@ -218,21 +238,7 @@ def compute(
         if on_sequence:
             on_sequence(f"{source}:{split}", len(starts))
 
-    # Scatter the per-file results to the rows of agent_windows.parquet (shared files appear in many parts).
-    keys = pd.concat(
-        [
-            pd.DataFrame({"source": s, "split": p, "first_step": r.first_step, "ped_id": r.ped_id})
-            for (s, p), r in results.items()
-        ],
-        ignore_index=True,
-    )
-    keys["feature_row"] = np.arange(len(keys))
-    rows = agents.merge(window_table, on=["benchmark", "part", "window_id"], how="left", sort=False)
-    rows["source"], rows["split"] = rows["source"].astype(str), rows["split"].astype(str)
-    rows = rows.merge(keys, on=["source", "split", "first_step", "ped_id"], how="left", sort=False)
-    assert rows["feature_row"].notna().all(), "every valid agent-window must have features"
-    take = rows["feature_row"].to_numpy(dtype=np.int64)
-    arrays = {name: np.concatenate([r.arrays[name] for r in results.values()])[take] for name in FORCES_ARRAYS}
+    rows, arrays = _scatter(results, window_table, agents)
     for name, filename in FORCES_ARRAYS.items():
         np.save(out_dir / filename, arrays[name])
     pq.write_table(
