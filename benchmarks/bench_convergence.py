@@ -34,6 +34,7 @@ def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namesp
     from fftool import pipeline
     from fftool.config import load_config
     from fftool.stages import cvae
+    from fftool.stages.contract import StageContext
 
     fixed = {
         "data.raw_dir": str(args.raw.resolve()),
@@ -47,21 +48,13 @@ def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namesp
         out, scratch = Path(work) / "out", Path(work) / "scratch"
         out.mkdir()
         started = time.perf_counter()
-        stats = cvae.train(
-            cfg.cvae,
-            cfg.forces,
-            args.benchmark,
-            built["windows"],
-            built["forces"],
-            out,
-            scratch,
-            torch.device("cpu"),
-            on_epoch=lambda row: print(
-                f"  epoch {row['epoch']:>3}  train {row['train_seconds']:7.1f} s  "
-                f"val minADE {row['val_min_ade@20_m']:.3f}  minFDE {row['val_min_fde@20_m']:.3f}",
-                flush=True,
-            ),
+        on_epoch = lambda row: print(  # noqa: E731
+            f"  epoch {row['epoch']:>3}  train {row['train_seconds']:7.1f} s  "
+            f"val minADE {row['val_min_ade@20_m']:.3f}  minFDE {row['val_min_fde@20_m']:.3f}",
+            flush=True,
         )
+        ctx = StageContext(out, scratch, args.benchmark, "cpu", on_epoch=on_epoch)
+        stats = cvae.train(cfg.cvae, cfg.forces, built["windows"], built["forces"], ctx)
         print(f"  {time.perf_counter() - started:.0f} s in all", flush=True)
     return [{"recipe": name, **row} for row in stats["log"]]
 

@@ -21,6 +21,7 @@ from fftool.learning.features import FEATURE_DIMS, prepare
 from fftool.learning.training import save_checkpoint
 from fftool.models.forceformer import Gaussian
 from fftool.stages import cvae
+from fftool.stages.contract import StageContext
 
 TINY = CVAEConfig(
     d_model=16,
@@ -46,10 +47,10 @@ def inputs(raw_tree: Path, tmp_path: Path) -> dict:
 def _train(inputs: dict, tmp_path: Path, name: str, cfg: CVAEConfig, on_progress=None) -> dict:
     out = tmp_path / name
     out.mkdir(exist_ok=True)
-    return cvae.train(
-        cfg, ForcesConfig(), "zara1", inputs["windows"], inputs["forces"], out, tmp_path / "scratch",
-        torch.device("cpu"), on_progress,
-    )  # fmt: skip
+    ctx = StageContext(
+        out, tmp_path / "scratch", "zara1", "cpu", **({"on_progress": on_progress} if on_progress else {})
+    )
+    return cvae.train(cfg, ForcesConfig(), inputs["windows"], inputs["forces"], ctx)
 
 
 @pytest.mark.parametrize("variant", ["baseline", "goal", "dr", "re"])

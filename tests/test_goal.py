@@ -21,6 +21,7 @@ from fftool.learning.batches import SceneMaps
 from fftool.learning.training import save_checkpoint
 from fftool.science.heatmaps import softargmax
 from fftool.stages import goal
+from fftool.stages.contract import StageContext
 
 from .test_maps import make_scene
 
@@ -42,17 +43,10 @@ def inputs(raw_tree: Path, tmp_path: Path) -> dict:
 def _train(inputs: dict, tmp_path: Path, name: str, cfg: GoalConfig = TINY, on_progress=None) -> dict:
     out = tmp_path / name
     out.mkdir(exist_ok=True)
-    return goal.train(
-        cfg,
-        SAMPLING,
-        "zara1",
-        inputs["windows"],
-        inputs["maps"],
-        out,
-        tmp_path / "scratch",
-        torch.device("cpu"),
-        on_progress,
+    ctx = StageContext(
+        out, tmp_path / "scratch", "zara1", "cpu", **({"on_progress": on_progress} if on_progress else {})
     )
+    return goal.train(cfg, SAMPLING, inputs["windows"], inputs["maps"], ctx)
 
 
 def test_loss_decreases_and_the_best_model_reloads(inputs: dict, tmp_path: Path) -> None:

@@ -28,7 +28,7 @@ from fftool.dataset.scenes import BENCHMARKS
 from fftool.errors import FftoolError
 from fftool.stages import cvae, evaluate, forces, goal, goals, maps, tracks, windows
 from fftool.stages.contract import Stage, StageContext
-from fftool.ui import log, progress
+from fftool.ui import log, progress, warn
 
 
 @dataclass(frozen=True)
@@ -170,6 +170,8 @@ def _build(
             on_epoch=lambda row: bar.console.print("  " + "  ".join(_cell(k, v) for k, v in row.items())),
         )
         stats = stage.build(cfg, inputs, ctx)
+        for message in stats.get("warnings", []):  # a stage's warnings stay in its manifest too
+            warn(message)
         build_s = time.perf_counter() - started - checked_s
         built_ctx.stats = stats | {"input_check_seconds": round(checked_s, 4), "build_seconds": round(build_s, 3)}
     assert built_ctx.artifact is not None

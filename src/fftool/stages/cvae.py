@@ -17,7 +17,6 @@ import itertools
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
@@ -222,25 +221,14 @@ def _trainer(
 
 
 def train(
-    cfg: CVAEConfig,
-    forces_cfg: ForcesConfig,
-    benchmark: str,
-    windows: Artifact,
-    forces: Artifact,
-    out_dir: Path,
-    scratch: Path,
-    device: torch.device,
-    on_progress: Callable[[str, int, int], None] | None = None,
-    on_epoch: Callable[[dict[str, Any]], None] | None = None,
+    cfg: CVAEConfig, forces_cfg: ForcesConfig, windows: Artifact, forces: Artifact, ctx: StageContext
 ) -> dict[str, Any]:
     """Train with validation every epoch; write the best model and the log; return the manifest stats.
 
-    Args:
-        cfg: the `cvae` section (variant included). forces_cfg: the force constants used in the decoder.
-        benchmark: whose train/val parts are used. windows, forces: input artifacts.
-        out_dir: the build folder. scratch: the resumable checkpoint's folder.
-        device: torch device. on_progress: (phase, done, total) per batch. on_epoch: each log row.
+    cfg: the `cvae` section (variant included); forces_cfg: the force constants used in the decoder;
+    windows, forces: input artifacts; ctx: the benchmark, build and scratch folders, device, callbacks.
     """
+    benchmark, device, out_dir = ctx.need_benchmark(), ctx.device(), ctx.out_dir
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
     started = time.perf_counter()
     progress = fit(
@@ -251,12 +239,12 @@ def train(
         train_epoch=trainer.epoch,
         validate=trainer.validate,
         best_by=f"val_min_ade@{cfg.k}_m",
-        scratch=scratch,
+        scratch=ctx.scratch,
         out_dir=out_dir,
         log_name=CVAE_LOG_FILE,
         device=device,
-        on_progress=on_progress,
-        on_epoch=on_epoch,
+        on_progress=ctx.on_progress,
+        on_epoch=ctx.on_epoch,
     )
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,
@@ -289,18 +277,7 @@ def train(
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: train one benchmark's CVAE of the configured variant."""
-    return train(
-        cfg.cvae,
-        cfg.forces,
-        ctx.need_benchmark(),
-        inputs["windows"],
-        inputs["forces"],
-        ctx.out_dir,
-        ctx.scratch,
-        ctx.device(),
-        on_progress=ctx.on_progress,
-        on_epoch=ctx.on_epoch,
-    )
+    return train(cfg.cvae, cfg.forces, inputs["windows"], inputs["forces"], ctx)
 
 
 STAGE = Stage(

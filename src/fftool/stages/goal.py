@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
@@ -140,27 +139,14 @@ def _trainer(
 
 
 def train(
-    cfg: GoalConfig,
-    goals_cfg: GoalsConfig,
-    benchmark: str,
-    windows: Artifact,
-    maps: Artifact,
-    out_dir: Path,
-    scratch: Path,
-    device: torch.device,
-    on_progress: Callable[[str, int, int], None] | None = None,
-    on_epoch: Callable[[dict[str, Any]], None] | None = None,
+    cfg: GoalConfig, goals_cfg: GoalsConfig, windows: Artifact, maps: Artifact, ctx: StageContext
 ) -> dict[str, Any]:
     """Train, validating every epoch; write the best model and the log. Returns the manifest stats.
 
-    Args:
-        cfg: the `goal` section. goals_cfg: the sampling used for validation goal-FDE@K.
-        benchmark: the leave-one-out benchmark whose train part is used.
-        windows, maps: input artifacts. out_dir: the build folder.
-        scratch: where the resumable checkpoint lives (kept if this build fails).
-        device: torch device. on_progress: called with (phase, done, total) after every batch.
-        on_epoch: called with each epoch's log row (a line per epoch even where no live bar shows).
+    cfg: the `goal` section; goals_cfg: the sampling used for validation goal-FDE@K; windows, maps: input
+    artifacts; ctx: the benchmark (its train part is used), build and scratch folders, device, callbacks.
     """
+    benchmark, device, out_dir = ctx.need_benchmark(), ctx.device(), ctx.out_dir
     trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
     started = time.perf_counter()
     progress = fit(
@@ -171,12 +157,12 @@ def train(
         train_epoch=trainer.epoch,
         validate=trainer.validate,
         best_by=f"val_goal_fde@{goals_cfg.k}_m",
-        scratch=scratch,
+        scratch=ctx.scratch,
         out_dir=out_dir,
         log_name=GOAL_LOG_FILE,
         device=device,
-        on_progress=on_progress,
-        on_epoch=on_epoch,
+        on_progress=ctx.on_progress,
+        on_epoch=ctx.on_epoch,
     )
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,
@@ -206,18 +192,7 @@ def train(
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: train one benchmark's goal U-Net."""
-    return train(
-        cfg.goal,
-        cfg.goals,
-        ctx.need_benchmark(),
-        inputs["windows"],
-        inputs["maps"],
-        ctx.out_dir,
-        ctx.scratch,
-        ctx.device(),
-        on_progress=ctx.on_progress,
-        on_epoch=ctx.on_epoch,
-    )
+    return train(cfg.goal, cfg.goals, inputs["windows"], inputs["maps"], ctx)
 
 
 STAGE = Stage(

@@ -29,7 +29,6 @@ from fftool.config import MapsConfig, PipelineConfig
 from fftool.dataset.scene_images import apply_homography, read_image, read_scene
 from fftool.dataset.scenes import SCENES
 from fftool.stages.contract import Stage, StageContext
-from fftool.ui import warn
 
 NAME: Final = "maps"
 VERSION: Final = 1
@@ -168,10 +167,7 @@ def rasterise(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: one raster per scene of `data.scenes_dir`."""
-    stats = rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.out_dir)
-    for message in stats["warnings"]:
-        warn(message)
-    return stats
+    return rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.out_dir)
 
 
 STAGE = Stage(

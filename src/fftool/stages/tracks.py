@@ -22,7 +22,6 @@ from fftool.dataset.rawfiles import RawTable, read_raw
 from fftool.dataset.scenes import SOURCES, SPLITS, raw_relpath
 from fftool.errors import RawDataError
 from fftool.stages.contract import Stage, StageContext
-from fftool.ui import warn
 
 NAME: Final = "tracks"
 VERSION: Final = 1
@@ -127,12 +126,9 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
     """The stage contract: validate the raw files of `data.raw_dir` into `tracks.parquet`."""
     files = len(SOURCES) * len(SPLITS)
     done = iter(range(1, files + 1))
-    stats = ingest_raw(
+    return ingest_raw(
         cfg.ingest, Path(cfg.data.raw_dir), ctx.out_dir, on_file=lambda name: ctx.on_progress(name, next(done), files)
     )
-    for message in stats["warnings"]:
-        warn(message)
-    return stats
 
 
 STAGE = Stage(
