@@ -189,12 +189,6 @@ DeviceOption = Annotated[
 ]
 
 
-def check_benchmark(value: str) -> str:
-    if value not in BENCHMARKS:
-        raise typer.BadParameter(f"{value!r} is not one of {', '.join(BENCHMARKS)}")
-    return value
-
-
 def check_benchmarks(value: str) -> str:
     names = BENCHMARKS if value == "all" else tuple(v.strip() for v in value.split(","))
     unknown = [name for name in names if name not in BENCHMARKS]
@@ -205,17 +199,22 @@ def check_benchmarks(value: str) -> str:
     return ",".join(names)
 
 
-BenchmarkOption = Annotated[
+BenchmarksOption = Annotated[
     str,
     typer.Option(
-        "--benchmark", "-b", help=f"Leave-one-out benchmark: {', '.join(BENCHMARKS)}.", callback=check_benchmark
+        "--benchmarks", help=f"Comma-separated benchmarks ({', '.join(BENCHMARKS)}), or all.", callback=check_benchmarks
     ),
 ]
-
-
-BenchmarksOption = Annotated[
-    str, typer.Option("--benchmarks", help="Comma-separated benchmarks, or all.", callback=check_benchmarks)
+# The spelling of fftool 0.x, kept so old scripts run: `-b zara1` / `--benchmark zara1` mean `--benchmarks zara1`.
+OldBenchmarkOption = Annotated[
+    str | None,
+    typer.Option("--benchmark", "-b", hidden=True, callback=lambda v: v if v is None else check_benchmarks(v)),
 ]
+
+
+def chosen_benchmarks(benchmarks: str, old_spelling: str | None) -> list[str]:
+    """The benchmarks a command runs on: `--benchmarks`, or the old `-b/--benchmark` when that was given."""
+    return (old_spelling or benchmarks).split(",")
 
 
 def check_variant(value: str) -> str:

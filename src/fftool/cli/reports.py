@@ -9,9 +9,10 @@ from typing import Annotated
 import typer
 
 from fftool.cli.app import (
-    BenchmarkOption,
+    BenchmarksOption,
     ConfigOption,
     DeviceOption,
+    OldBenchmarkOption,
     OptionalBenchmarks,
     OutOption,
     ProtocolOption,
@@ -23,6 +24,7 @@ from fftool.cli.app import (
     build_stages,
     check_predictor,
     check_threshold,
+    chosen_benchmarks,
     open_store,
 )
 
@@ -100,12 +102,13 @@ app.command(
 
 
 @app.command(
-    epilog="Examples:\n\n  fftool plot --benchmark zara1 --variants baseline,dr,re -c pipelines/quick.toml\n\n"
-    "  fftool plot --benchmark eth --windows 12,40 --best --out figures/"
+    epilog="Examples:\n\n  fftool plot --benchmarks zara1 --variants baseline,dr,re -c pipelines/quick.toml\n\n"
+    "  fftool plot --benchmarks zara1 --windows 12,40 --best --out figures/ -c pipelines/quick.toml"
 )
 @boundary
 def plot(
-    benchmark: BenchmarkOption = "zara1",
+    benchmarks: BenchmarksOption = "zara1",
+    old_benchmark: OldBenchmarkOption = None,
     variants: Annotated[
         str, typer.Option("--variants", help="Predictors side by side: baseline, goal, dr, re, cv.")
     ] = "baseline,dr,re",
@@ -127,27 +130,32 @@ def plot(
     Reads the saved predictions of each predictor's evaluation (evaluated first if only the model exists).
     """
     from fftool.config import load_config, predictor_config
+    from fftool.errors import UsageError
     from fftool.reporting import plots
     from fftool.ui import log
 
     predictors = [check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
     cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
-    built = [
-        build_stages(predictor_config(cfg, predictor), ["evaluate"], root, False, device, benchmark)
-        for predictor in predictors
-    ]
-    written = plots.figures(
-        {benchmark: [plots.Evaluation.of(b["evaluate"]) for b in built]},
-        built[0]["windows"],
-        cfg.evaluate.part,
-        Path(cfg.data.scenes_dir),
-        out,
-        density_file=f"density_{benchmark}.png",
-        window_ids=[int(w) for w in windows.split(",")] if windows else None,
-        count=count,
-        best_only=best,
-    )
-    log(f"wrote {', '.join(map(str, written))}")
+    names = chosen_benchmarks(benchmarks, old_benchmark)
+    if windows and len(names) > 1:
+        raise UsageError("--windows names windows of one benchmark; give one in --benchmarks")
+    for benchmark in names:
+        built = [
+            build_stages(predictor_config(cfg, predictor), ["evaluate"], root, False, device, benchmark)
+            for predictor in predictors
+        ]
+        written = plots.figures(
+            {benchmark: [plots.Evaluation.of(b["evaluate"]) for b in built]},
+            built[0]["windows"],
+            cfg.evaluate.part,
+            Path(cfg.data.scenes_dir),
+            out,
+            density_file=f"density_{benchmark}.png",
+            window_ids=[int(w) for w in windows.split(",")] if windows else None,
+            count=count,
+            best_only=best,
+        )
+        log(f"wrote {', '.join(map(str, written))}")
 
 
 @app.command(epilog="Example: fftool rescore evaluate/3f9c2a --threshold 0.2")

@@ -8,11 +8,11 @@ from typing import Annotated
 import typer
 
 from fftool.cli.app import (
-    BenchmarkOption,
     BenchmarksOption,
     ConfigOption,
     DeviceOption,
     ForceOption,
+    OldBenchmarkOption,
     ProtocolOption,
     RootOption,
     SetOption,
@@ -21,6 +21,7 @@ from fftool.cli.app import (
     build_stages,
     check_predictor,
     check_variant,
+    chosen_benchmarks,
     run_stages,
 )
 from fftool.dataset.scenes import BENCHMARKS
@@ -114,22 +115,24 @@ def maps(
     out_console.print(maps_table(run_stages(["maps"], config, set_, root, force)["maps"]))
 
 
-@app.command("train-goal", epilog="Example: fftool train-goal --benchmark zara1 --config pipelines/quick.toml")
+@app.command("train-goal", epilog="Example: fftool train-goal --benchmarks zara1,zara2 --config pipelines/quick.toml")
 @boundary
 def train_goal(
-    benchmark: BenchmarkOption = "zara1",
+    benchmarks: BenchmarksOption = "zara1",
+    old_benchmark: OldBenchmarkOption = None,
     device: DeviceOption = "auto",
     config: ConfigOption = None,
     set_: SetOption = None,
     root: RootOption = None,
     force: ForceOption = False,
 ) -> None:
-    """Train the U-Net goal estimator on a benchmark's train part (resumable; best epoch by val goal-FDE)."""
+    """Train the U-Net goal estimator on each benchmark's train part (resumable; best epoch by val goal-FDE)."""
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
-    built = run_stages(["goal"], config, set_, root, force, device, benchmark)
-    out_console.print(training_table(built["goal"], "goal U-Net"))
+    for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+        built = run_stages(["goal"], config, set_, root, force, device, benchmark)
+        out_console.print(training_table(built["goal"], f"goal U-Net ({benchmark})"))
 
 
 @app.command(
@@ -138,6 +141,7 @@ def train_goal(
 @boundary
 def sample_goals(
     benchmarks: BenchmarksOption = "all",
+    old_benchmark: OldBenchmarkOption = None,
     device: DeviceOption = "auto",
     config: ConfigOption = None,
     set_: SetOption = None,
@@ -150,17 +154,18 @@ def sample_goals(
 
     artifacts = {
         benchmark: run_stages(["goals"], config, set_, root, force, device, benchmark)["goals"]
-        for benchmark in benchmarks.split(",")
+        for benchmark in chosen_benchmarks(benchmarks, old_benchmark)
     }
     out_console.print(goal_fde_table(artifacts))
 
 
 @app.command(
-    "train-cvae", epilog="Example: fftool train-cvae --benchmark zara1 --variant dr --config pipelines/quick.toml"
+    "train-cvae", epilog="Example: fftool train-cvae --benchmarks zara1 --variant dr --config pipelines/quick.toml"
 )
 @boundary
 def train_cvae(
-    benchmark: BenchmarkOption = "zara1",
+    benchmarks: BenchmarksOption = "zara1",
+    old_benchmark: OldBenchmarkOption = None,
     variant: Annotated[
         str,
         typer.Option(
@@ -179,8 +184,9 @@ def train_cvae(
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
-    built = run_stages(["cvae"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
-    out_console.print(training_table(built["cvae"], f"CVAE {variant}"))
+    for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+        built = run_stages(["cvae"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
+        out_console.print(training_table(built["cvae"], f"CVAE {variant} ({benchmark})"))
 
 
 @app.command(
@@ -190,6 +196,7 @@ def train_cvae(
 @boundary
 def evaluate(
     benchmarks: BenchmarksOption = "zara1",
+    old_benchmark: OldBenchmarkOption = None,
     variant: Annotated[
         str,
         typer.Option(
@@ -213,6 +220,6 @@ def evaluate(
     cfg = predictor_config(load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None), variant)
     built = [
         build_stages(cfg, ["evaluate"], root, force, device, benchmark)["evaluate"]
-        for benchmark in benchmarks.split(",")
+        for benchmark in chosen_benchmarks(benchmarks, old_benchmark)
     ]
     out_console.print(evaluation_table(built))
