@@ -108,7 +108,15 @@ def test_the_cli_trains_a_variant(raw_tree: Path, tmp_path: Path) -> None:
     small = [
         f"cvae.{k}={v}" for k, v in {"d_model": 16, "n_heads": 2, "d_ff": 32, "epochs": 1, "k": 3, "train_k": 2}.items()
     ]
-    args = ["train-cvae", "--benchmarks", "zara1", "--variant", "dr", *common, *(part for s in small for part in ("--set", s))]
+    args = [
+        "train-cvae",
+        "--benchmarks",
+        "zara1",
+        "--variant",
+        "dr",
+        *common,
+        *(part for s in small for part in ("--set", s)),
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "val_min_ade@3_m" in result.output

@@ -126,7 +126,7 @@ def test_cli_forces_and_explain_without_scene_image(tmp_path: Path, raw_tree: Pa
     first = runner.invoke(app, args)
     assert first.exit_code == 1
     assert "Error: no 'tracks' artifact for these parameters" in first.output
-    assert "run `fftool ingest` first" in first.output
+    assert "run `fftool ingest` first, with the same -c/--set" in first.output
     assert runner.invoke(app, ["ingest", "--root", str(root), "--raw", str(raw_tree)]).exit_code == 0
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output

@@ -96,7 +96,7 @@ def test_the_cli_trains_samples_and_prints_the_tables(raw_tree: Path, tmp_path: 
     tiny += ["--set", "goal.resolution_m=0.5", "--set", "goals.samples=100"]
     runner = CliRunner()
     missing = runner.invoke(app, ["train-goal", "--benchmarks", "zara1", *common, *tiny])
-    assert missing.exit_code == 1 and "run `fftool ingest` first" in missing.output
+    assert missing.exit_code == 1 and "run `fftool ingest` first, with the same -c/--set" in missing.output
     assert runner.invoke(app, ["ingest", *common]).exit_code == 0
     assert runner.invoke(app, ["maps", *common]).exit_code == 0
     trained = runner.invoke(app, ["train-goal", "-b", "zara1", *common, *tiny, "--device", "cpu"])

@@ -10,6 +10,7 @@ import pytest
 from fftool import pipeline
 from fftool.artifacts.store import ArtifactStore
 from fftool.config import load_config, predictor_config
+from fftool.errors import FftoolError
 
 
 @pytest.fixture
@@ -84,3 +85,11 @@ def test_every_shipped_profile_loads_and_plans_the_whole_dag(profile: Path) -> N
         names = [item.stage.name for item in pipeline.resolve(cell, ["evaluate"], cfg.report.benchmarks[0])]
         assert names[-1] == "evaluate" and names[0] == "tracks"
         assert ("goals" in names) == (predictor in ("goal", "dr", "re"))
+
+
+def test_a_missing_artifact_names_the_command_with_benchmark_and_variant(raw_tree: Path, tmp_path: Path) -> None:
+    cfg = _cfg(raw_tree, "cvae.variant='dr'")
+    store = ArtifactStore(tmp_path / "artifacts")
+    pipeline.run(cfg, store, ["forces"])
+    with pytest.raises(FftoolError, match=r"run `fftool train-cvae --benchmarks zara1 --variant dr` first"):
+        pipeline.run(cfg, store, ["evaluate"], upstream=False, benchmark="zara1")

@@ -211,3 +211,13 @@ def test_require_names_the_command_and_checks_the_schema(store: ArtifactStore) -
     with pytest.raises(SchemaError, match=r"schema version 1, this fftool reads version 2; rebuild it with"):
         store.require("demo", FP_A, 2, "fftool ingest")
     assert store.require("demo", FP_A, 1, "fftool ingest").kind == "demo"
+
+
+def test_a_bare_kind_is_ambiguous_when_several_exist_and_lists_them(store: ArtifactStore) -> None:
+    with store.build("cvae", FP_A, schema_version=1, params={"benchmark": "zara1", "variant": "dr"}, inputs={}) as c:
+        (c.dir / "m").write_text("a")
+    assert store.resolve("cvae").id == f"cvae/{FP_A[:16]}"  # the only one
+    with store.build("cvae", FP_B, schema_version=1, params={"benchmark": "eth", "variant": "re"}, inputs={}) as c:
+        (c.dir / "m").write_text("b")
+    with pytest.raises(FftoolError, match=r"'cvae' is ambiguous, 2 artifacts match: .*\(zara1 · dr\).*\(eth · re\)"):
+        store.resolve("cvae")

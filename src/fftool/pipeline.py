@@ -104,7 +104,7 @@ def run(
     for item in resolve(cfg, targets, benchmark):
         stage, fp = item.stage, item.fingerprint
         if not upstream and stage.name not in targets:
-            built[stage.name] = store.require(stage.name, fp, stage.version, stage.command)
+            built[stage.name] = store.require(stage.name, fp, stage.version, stage.command_line(cfg, benchmark))
             continue
         existing = None if stage.name in forced else _cached(store, stage, fp)
         if existing is not None and stage.name in targets:  # the caller reads it: check its bytes first

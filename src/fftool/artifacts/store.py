@@ -103,6 +103,13 @@ class Artifact:
     def id(self) -> str:
         return f"{self.kind}/{self.fingerprint[:_FP_DIR_LEN]}"
 
+    @property
+    def label(self) -> str:
+        """What the artifact is about, for listings: its benchmark, variant and protocol where it has them."""
+        manifest = self.manifest
+        parts = [manifest.stats.get(key) or manifest.params.get(key) for key in ("benchmark", "variant", "protocol")]
+        return " · ".join(str(part) for part in parts if part and part != "none")
+
     def file(self, name: str) -> Path:
         """Path of one of the artifact's files; fails if the manifest does not list it."""
         if name not in self.manifest.files:
@@ -221,22 +228,24 @@ class ArtifactStore:
         return problems
 
     def resolve(self, ref: str) -> Artifact:
-        """Find an artifact by `kind/fp-prefix`, `kind` (the newest) or a bare fingerprint prefix."""
+        """Find an artifact by `kind/fp-prefix`, a bare fingerprint prefix, or `kind` when only one exists."""
         kind, _, prefix = ref.rpartition("/") if "/" in ref else ("", "", ref)
         if ("/" in ref and not _KIND.fullmatch(kind)) or (prefix and not re.fullmatch(r"[a-z0-9_]+", prefix)):
             raise FftoolError(f"{ref!r} is not an artifact id (kind/fingerprint-prefix, e.g. windows/3f9c2a)")
         candidates = self.list(kind or None)
         if kind and not prefix:
-            matches = candidates[-1:]
+            matches = candidates
         else:
             matches = [a for a in candidates if a.fingerprint.startswith(prefix)]
-            if not kind and not matches:  # a bare kind name: its newest artifact
-                matches = self.list(prefix)[-1:] if (self.root / prefix).is_dir() else []
+            if not kind and not matches and _KIND.fullmatch(prefix):  # a bare kind name
+                matches = self.list(prefix)
         if not matches:
             raise ArtifactMissing(f"no artifact matches {ref!r} under {self.root} (see `fftool artifacts list`)")
         if len(matches) > 1:
-            ids = ", ".join(a.id for a in matches)
-            raise FftoolError(f"{ref!r} is ambiguous: {ids}; give more of the fingerprint")
+            ids = ", ".join(f"{a.id} ({a.label})" if a.label else a.id for a in matches)
+            raise FftoolError(
+                f"{ref!r} is ambiguous, {len(matches)} artifacts match: {ids}; give more of the fingerprint"
+            )
         return matches[0]
 
     def require(self, kind: str, fp: str, schema_version: int, made_by: str) -> Artifact:
@@ -245,7 +254,7 @@ class ArtifactStore:
         if artifact is None:
             raise ArtifactMissing(
                 f"no {kind!r} artifact for these parameters (fingerprint {fp[:_FP_DIR_LEN]}) "
-                f"under {self.root}; run `{made_by}` first"
+                f"under {self.root}; run `{made_by}` first, with the same -c/--set"
             )
         check_schema(artifact, kind, schema_version, made_by)
         return artifact

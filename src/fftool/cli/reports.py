@@ -164,7 +164,8 @@ def rescore(
     artifact_id: Annotated[
         str,
         typer.Argument(
-            metavar="ID", help="An evaluate artifact: evaluate/fingerprint-prefix, or evaluate (the newest)."
+            metavar="ID",
+            help="An evaluate artifact: evaluate/fingerprint-prefix (see `fftool artifacts list --kind evaluate`).",
         ),
     ],
     threshold: Annotated[

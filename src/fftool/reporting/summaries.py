@@ -43,7 +43,7 @@ def windows_summary_table(windows: Artifact) -> Table:
 
 def artifacts_table(artifacts: list[Artifact]) -> Table:
     table = Table(title="artifacts", title_justify="left")
-    for name in ("id", "schema", "created", "files", "size", "inputs"):
+    for name in ("id", "about", "schema", "created", "files", "size", "inputs"):
         table.add_column(name, justify="right" if name in ("files", "size") else "left")
     for artifact in artifacts:
         manifest = artifact.manifest
@@ -54,6 +54,7 @@ def artifacts_table(artifacts: list[Artifact]) -> Table:
         )
         table.add_row(
             artifact.id,
+            artifact.label,
             f"v{manifest.schema_version}",
             manifest.created_at,
             str(len(manifest.files)),

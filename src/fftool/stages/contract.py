@@ -73,6 +73,13 @@ class Stage:
     per_benchmark: bool = False  # one artifact per leave-one-out benchmark (the benchmark is a parameter)
     # Upstream stages that depend on the configuration (a subset of `inputs`); default: all of them.
     needs: Callable[[PipelineConfig], tuple[str, ...]] | None = None
+    # The command's options that select this artifact (e.g. ` --variant dr`), for error messages.
+    command_args: Callable[[PipelineConfig], str] = field(default=lambda cfg: "")
 
     def inputs_for(self, cfg: PipelineConfig | None) -> tuple[str, ...]:
         return self.inputs if self.needs is None or cfg is None else self.needs(cfg)
+
+    def command_line(self, cfg: PipelineConfig, benchmark: str | None) -> str:
+        """The command that makes this stage's artifact for `cfg` (and `benchmark`), as a user would type it."""
+        where = f" --benchmarks {benchmark}" if self.per_benchmark and benchmark else ""
+        return f"{self.command}{where}{self.command_args(cfg)}"

@@ -289,4 +289,5 @@ STAGE = Stage(
     build=build,
     description=lambda cfg, benchmark: f"train CVAE {cfg.cvae.variant} ({benchmark})",
     per_benchmark=True,
+    command_args=lambda cfg: f" --variant {cfg.cvae.variant}",
 )

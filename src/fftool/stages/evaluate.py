@@ -327,4 +327,8 @@ STAGE = Stage(
     description=lambda cfg, benchmark: f"evaluate ({benchmark})",
     per_benchmark=True,
     needs=reads,
+    command_args=lambda cfg: (
+        (" --variant cv" if cfg.evaluate.predictor == "cv" else f" --variant {cfg.cvae.variant}")
+        + (f" --protocol {cfg.evaluate.protocol}" if reads_goal(cfg) else "")
+    ),
 )
