@@ -149,6 +149,7 @@ def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatc
 
 
 def test_loss_decreases_and_a_seeded_run_repeats_exactly(inputs: dict, tmp_path: Path) -> None:
+    # "The same numbers" holds for the same machine, torch version and thread count (manifest `environment`).
     cfg = TINY.model_copy(update={"epochs": 4, "variant": "dr"})
     first = _train(inputs, tmp_path, "first", cfg)
     losses = [row["train_loss"] for row in first["log"]]

@@ -41,6 +41,14 @@ def test_build_writes_manifest_with_hashes(store: ArtifactStore) -> None:
     assert store.verify(artifact) == []
 
 
+def test_the_manifest_records_where_it_was_built(store: ArtifactStore) -> None:
+    import torch  # noqa: F401 - a process that uses torch records its version and thread count
+
+    environment = _build(store).manifest.environment
+    assert {"python", "platform", "cpu", "cpu_count", "numpy", "torch", "torch_threads"} <= set(environment)
+    assert environment["torch_threads"] >= 1 and environment["cpu"]
+
+
 def test_failed_build_leaves_nothing(tmp_path: Path) -> None:
     store = ArtifactStore(tmp_path / "fresh")
     with pytest.raises(RuntimeError), store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:

@@ -27,8 +27,8 @@ from typing import Any
 from filelock import FileLock
 
 from fftool import __version__
-from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 from fftool.artifacts.hashing import sha256_file
+from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 from fftool.ui import warn
 
 MANIFEST = "manifest.json"
@@ -61,6 +61,9 @@ class Manifest:
     fftool_version: str = __version__
     git_commit: str | None = None
     created_at: str = ""
+    # Where it was built (not fingerprinted): trained numbers depend on the torch version, thread count
+    # and CPU, so the same inputs and seed give the same numbers only where these match.
+    environment: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, sort_keys=True)
@@ -132,6 +135,36 @@ def _git_commit() -> str | None:
     if out.returncode != 0:
         return None
     return out.stdout.strip() or None
+
+
+def environment() -> dict[str, Any]:
+    """Python, library versions, torch's thread count and the CPU model of this process."""
+    import platform
+    import sys
+
+    import numpy
+
+    found: dict[str, Any] = {
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpu": _cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "numpy": numpy.__version__,
+    }
+    torch = sys.modules.get("torch")  # only when this process uses it: importing torch costs seconds
+    if torch is not None:
+        found |= {"torch": torch.__version__, "torch_threads": torch.get_num_threads()}
+    return found
+
+
+def _cpu_model() -> str:
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    import platform
+
+    return platform.processor() or platform.machine()
 
 
 def _pid_alive(pid: int) -> bool:
@@ -366,6 +399,7 @@ class ArtifactStore:
                 stats=ctx.stats,
                 git_commit=_git_commit(),
                 created_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                environment=environment(),
             )
             (tmp / MANIFEST).write_text(manifest.to_json())
             self._install(tmp, self.path_for(kind, fp))
