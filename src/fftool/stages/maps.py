@@ -103,11 +103,24 @@ def build_scene(
 def _check_figure(
     scene: str, raster: np.ndarray, images: tuple[np.ndarray, np.ndarray], transform: dict, out: Path
 ) -> None:
-    """reference image | warped onto the ground grid | semantic channels, side by side."""
+    """reference image | warped onto the ground grid | semantic channels with their key, side by side."""
+    import matplotlib.pyplot as plt
+
+    fig = _check_figure_drawn(scene, raster, images, transform)
+    partial = out.with_name(f".{out.name}.partial")
+    fig.savefig(partial, format="png")
+    plt.close(fig)
+    os.replace(partial, out)
+
+
+def _check_figure_drawn(scene: str, raster: np.ndarray, images: tuple[np.ndarray, np.ndarray], transform: dict) -> Any:
+    """The check figure (a matplotlib Figure): the channel panel has a key with one entry per channel."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+    from matplotlib.legend_handler import HandlerTuple
 
     extent = (
         transform["origin_x_m"],
@@ -115,25 +128,77 @@ def _check_figure(
         transform["origin_y_m"],
         transform["origin_y_m"] + transform["height"] * transform["resolution_m"],
     )
-    labels = np.where(raster[0] > 0, raster[2:].argmax(0) + 1, 0)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5), dpi=90)
     reference, warped = images
+    colours = _cluster_colours(len(raster) - 2)
+    labels = np.where(raster[0] > 0, raster[2:].argmax(0) + 1, 0)  # 0 outside the footprint, c + 1 cluster c
+    fig, axes = plt.subplots(1, 3, figsize=(20, 5.4), dpi=90)
     axes[0].imshow(reference)
     axes[0].set_title(f"{scene}: reference image (pixels)")
     axes[1].imshow(warped, origin="lower", extent=extent)
     axes[1].set_title("warped onto the ground plane (metres, y up)")
-    axes[2].imshow(labels, origin="lower", extent=extent, cmap="Set2", vmin=0, vmax=7, interpolation="nearest")
+    cmap = ListedColormap([_OUTSIDE, *colours])
+    axes[2].imshow(labels, origin="lower", extent=extent, cmap=cmap, vmin=-0.5, vmax=len(colours) + 0.5)
     if raster[1].any():
         axes[2].contour(raster[1], levels=[0.5], colors="black", origin="lower", extent=extent, linewidths=1.0)
-    axes[2].set_title(f"colour clusters (dark→light){' + obstacles (black)' if raster[1].any() else ''}")
+    axes[2].set_title("map channels (key on the right)")
     for ax in axes[1:]:
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
+    handles, texts = zip(*_channel_key(raster, warped, colours), strict=True)
+    axes[2].legend(
+        handles,
+        texts,
+        handler_map={tuple: HandlerTuple(ndivide=None, pad=0.2)},
+        loc="upper left",
+        bbox_to_anchor=(1.02, 1.0),
+        fontsize=9,
+        title="channel: meaning (clusters: drawn colour | mean image colour)",
+        title_fontsize=9,
+        alignment="left",
+        handlelength=3.2,
+        labelspacing=0.8,
+    )
     fig.tight_layout()
-    partial = out.with_name(f".{out.name}.partial")
-    fig.savefig(partial, format="png")
-    plt.close(fig)
-    os.replace(partial, out)
+    return fig
+
+
+_OUTSIDE = "#f0f0f0"  # cells outside the image footprint (channel 0 = 0)
+
+
+def _cluster_colours(n: int) -> list[str]:
+    """Distinct colours to draw colour clusters 0..n-1 in (never black: black outlines obstacles)."""
+    import matplotlib
+
+    palette = matplotlib.colormaps["tab10" if n <= 7 else "tab20"]
+    picks = [i for i in range(palette.N) if i not in (7, 14, 15)][:n]  # skip the greys
+    picks += list(range(len(picks), n))  # more clusters than colours: repeat (rarely configured)
+    return [matplotlib.colors.to_hex(palette(i % palette.N)) for i in picks]
+
+
+def _channel_key(raster: np.ndarray, warped: np.ndarray, colours: list[str]) -> list[tuple[Any, str]]:
+    """(legend handle, label), one per channel. A colour cluster's handle is two swatches: the colour it is
+    drawn in, then its mean image colour (its cells' pixels averaged), so a reader can tell which surface it is."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    inside = raster[0] > 0
+    footprint = max(int(inside.sum()), 1)
+    key: list[tuple[Any, str]] = [
+        (Patch(facecolor=_OUTSIDE, edgecolor="0.3"), "0 inside: the image footprint (light grey: outside it)"),
+    ]
+    obstacle = "1 obstacle: black outline" if raster[1].any() else "1 obstacle: none in this scene"
+    key.append((Line2D([], [], color="black", lw=1.0), obstacle))
+    clusters = len(raster) - 2
+    for c in range(clusters):
+        cells = raster[2 + c] > 0
+        mean = warped[cells].reshape(-1, 3).mean(0) / 255 if cells.any() else np.ones(3)
+        order = " (darkest)" if c == 0 else " (lightest)" if c == clusters - 1 and clusters > 1 else ""
+        rgb = ", ".join(str(round(v * 255)) for v in mean)
+        share = 100 * cells.sum() / footprint
+        label = f"{2 + c} colour{c}{order}: {share:.0f}% of footprint, mean RGB ({rgb})"
+        swatches = (Patch(facecolor=colours[c], edgecolor="0.3"), Patch(facecolor=tuple(mean), edgecolor="0.3"))
+        key.append((swatches, label))
+    return key
 
 
 def rasterise(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any]:
