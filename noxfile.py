@@ -1,4 +1,4 @@
-"""Sessions: main (the README's end-to-end job), tests, lint, bench. Run `python3 -m nox -l` to list.
+"""Sessions: main (the README's end-to-end job), tests, dev, lint, bench. Run `python3 -m nox -l` to list.
 
 Every session installs fftool with `-c constraints.txt`, so the versions are the tested ones.
 """
@@ -32,6 +32,15 @@ def main(session: nox.Session) -> None:
     session.run(
         "fftool", "reproduce", "pipelines/quick.toml", "--benchmarks", "zara1", "--set", f"data.raw_dir={str(raw)!r}"
     )
+    session.log(f"fftool stays installed here: `source {session.bin}/activate`, then `fftool --help`")
+
+
+@nox.session
+def dev(session: nox.Session) -> None:
+    """A development environment in .venv (fftool editable, test and lint tools): `source .venv/bin/activate`."""
+    session.run("python", "-m", "venv", ".venv", external=True)
+    session.run(".venv/bin/python", "-m", "pip", "install", "-q", *CONSTRAINTS, "-e", ".[dev]", external=True)
+    session.log("ready: `source .venv/bin/activate`, then `fftool --help` and `pytest`")
 
 
 @nox.session
