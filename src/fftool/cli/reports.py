@@ -114,7 +114,11 @@ def plot(
     ] = "baseline,dr,re",
     windows: Annotated[
         str | None,
-        typer.Option("--windows", help="Comma-separated window ids. Default: where the predictors differ most."),
+        typer.Option(
+            "--windows",
+            help="Comma-separated window ids. Default: where the predictors differ most, windows with 3 or more "
+            "agents first, at least one window length apart.",
+        ),
     ] = None,
     count: Annotated[int, typer.Option("--count", min=1, help="Windows to pick when --windows is not given.")] = 3,
     best: Annotated[bool, typer.Option("--best", help="Draw each agent's best-ADE sample only, not all K.")] = False,
