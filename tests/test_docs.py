@@ -1,4 +1,5 @@
-"""Docs stay true: the CLI reference is generated from --help, pipeline files load, README has two commands."""
+"""Docs stay true: the CLI reference is generated from --help, pipeline files load, README has two commands,
+and every code block of the executed docs is run or says why not (tests/test_doc_commands.py runs them)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,16 @@ from pathlib import Path
 import pytest
 
 from fftool.config import load_config
+from tests.doc_fixtures import DOCS
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 
 import gen_cli_docs  # noqa: E402
+
+EXECUTED_DOCS = DOCS  # the documents whose code blocks tests/test_doc_commands.py runs
+RUN_LANGUAGES = {"bash", "python"}  # the languages tests/test_doc_commands.py runs
+TEXT_LANGUAGES = {"text", "toml", "json", "csv", "markdown"}  # shown, never commands
 
 
 def test_cli_reference_is_current() -> None:
@@ -33,3 +39,37 @@ def test_readme_has_exactly_two_setup_commands() -> None:
     assert len(commands) == 2
     ci = (ROOT / ".ci" / "run").read_text()
     assert commands[1] in ci, ".ci/run must call the README's test command"
+
+
+def fences(text: str) -> list[tuple[int, str]]:
+    """(line, info string) of each fenced code block's opening fence."""
+    opened, found = None, []
+    for number, line in enumerate(text.splitlines(), 1):
+        fence = re.match(r"\s*(`{3,}|~{3,})(.*)", line)
+        if fence and opened is None:
+            opened = fence.group(1)
+            found.append((number, fence.group(2).strip()))
+        elif fence and fence.group(1).startswith(opened) and not fence.group(2).strip():
+            opened = None
+    return found
+
+
+@pytest.mark.parametrize("name", EXECUTED_DOCS)
+def test_executed_docs_label_every_block(name: str) -> None:
+    """A block the doc tests cannot recognise would silently escape them: each says its language."""
+    for line, info in fences((ROOT / name).read_text()):  # the whole info string: Sybil matches it exactly
+        assert info in RUN_LANGUAGES | TEXT_LANGUAGES, (
+            f"{name}:{line}: fenced block labelled {info!r}; use bash or python (run by the doc tests) "
+            f"or one of {sorted(TEXT_LANGUAGES)}"
+        )
+
+
+@pytest.mark.parametrize("name", EXECUTED_DOCS)
+def test_blocks_not_run_say_why(name: str) -> None:
+    """Every skip marker names the one block it skips and gives the reason, for a reader of the source."""
+    text = (ROOT / name).read_text()
+    markers = re.findall(r"^[ \t]*(<!--\s*skip\b.*?-->)", text, re.S | re.M)  # at a line's start, as Sybil reads them
+    for marker in markers:
+        assert re.fullmatch(r'<!-- skip: next "[^"]{10,}" -->', marker), (
+            f'{name}: {marker!r}: write <!-- skip: next "why this block is not run" -->'
+        )
