@@ -88,3 +88,12 @@ def test_fetch_cli_then_ingest(real_raw: Path, serve, tmp_path: Path) -> None:
     assert "24 downloaded" in result.output
     ingest = runner.invoke(app, ["ingest", "--raw", str(tmp_path / "raw"), "--root", str(tmp_path / "artifacts")])
     assert ingest.exit_code == 0, ingest.output
+
+
+def test_an_unsupported_url_scheme_is_a_usage_error_not_a_checksum_mismatch(tmp_path: Path) -> None:
+    from fftool.dataset.fetch import fetch_raw
+    from fftool.errors import UsageError
+
+    with pytest.raises(UsageError, match=r"--base-url file:///x: downloads use https"):
+        fetch_raw(tmp_path / "raw", "file:///x")
+    assert not (tmp_path / "raw").exists()

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Final
 
 from fftool.artifacts.hashing import sha256_file
-from fftool.errors import FetchError
+from fftool.errors import FetchError, UsageError
 
 # The Social-GAN text files as redistributed by Trajectron++ (pinned commit, so the bytes never move).
 DEFAULT_BASE_URL: Final = (
@@ -29,6 +29,9 @@ def registry() -> dict[str, str]:
     text = resources.files("fftool.dataset").joinpath("registry/eth_ucy_raw.txt").read_text()
     pairs = (line.split() for line in text.splitlines() if line.strip() and not line.startswith("#"))
     return {rel: digest for rel, digest in pairs}
+
+
+_SCHEMES = ("https", "http", "ftp", "sftp", "doi")  # what pooch downloads from
 
 
 def fetch_raw(
@@ -46,6 +49,12 @@ def fetch_raw(
     import pooch
 
     pooch.get_logger().setLevel("WARNING")
+    scheme = base_url.split("://", 1)[0].lower() if "://" in base_url else ""
+    if scheme not in _SCHEMES:
+        raise UsageError(
+            f"--base-url {base_url}: downloads use {', '.join(_SCHEMES)} (pooch); for files you already have, "
+            "copy all_data/, train/ and val/ into --dest and run `fftool fetch-data` to check them"
+        )
     base_url = base_url if base_url.endswith("/") else base_url + "/"
     dest.mkdir(parents=True, exist_ok=True)
     status: dict[str, str] = {}
