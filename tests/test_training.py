@@ -7,6 +7,7 @@ import csv
 import os
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -223,11 +224,16 @@ def _fit(
 
     out = tmp_path / name
     out.mkdir()
-    progress = fit(
-        model, optimizer, epochs=epochs, seed=7, train_epoch=train_epoch, validate=validate, best_by="val_mse",
-        scratch=tmp_path / "scratch", out_dir=out, log_name="log.csv", device=torch.device("cpu"),
-        on_progress=on_progress, on_epoch=None if rows is None else rows.append,
-    )  # fmt: skip
+    trainer = SimpleNamespace(
+        model=model, optimizer=optimizer, device=torch.device("cpu"), epoch=train_epoch, validate=validate
+    )
+    run = SimpleNamespace(
+        out_dir=out,
+        scratch=tmp_path / "scratch",
+        on_progress=on_progress,
+        on_epoch=None if rows is None else rows.append,
+    )
+    progress = fit(trainer, run, epochs=epochs, seed=7, best_by="val_mse", log_name="log.csv")
     return progress, model.state_dict()
 
 

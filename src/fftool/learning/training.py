@@ -15,7 +15,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -259,50 +259,61 @@ def _quiet(done: int, total: int) -> None:
     """The tick of a run nobody follows batch by batch."""
 
 
-def fit(
-    model: torch.nn.Module,
-    optimizer: torch.optim.Optimizer,
-    *,
-    epochs: int,
-    seed: int,
-    train_epoch: TrainEpoch,
-    validate: Callable[[], dict[str, float]],
-    best_by: str,
-    scratch: Path,
-    out_dir: Path,
-    log_name: str,
-    device: torch.device,
-    on_progress: Callable[[str, int, int], None] | None = None,
-    on_epoch: Callable[[dict[str, Any]], None] | None = None,
-) -> Progress:
-    """Train for `epochs` epochs, validating after each, resuming from the scratch checkpoint; returns the log
-    and the best weights (lowest `validate()[best_by]`).
+class Trainer(Protocol):
+    """What a stage trains: its model and optimizer, one training epoch, and its validation metrics."""
 
-    The stages differ only in their data, model, loss and metrics, which they pass in as `train_epoch` and
-    `validate`; this loop owns what they share. Each epoch reseeds torch's global generator with `epoch_seed`
-    and ends with a checkpoint of `model`, `optimizer` and the progress, so a run killed mid-epoch and
-    started again redoes that epoch and ends with the same weights as an uninterrupted run. Log rows are
-    (epoch, seconds, training columns, validation metrics); they go to `on_epoch`, TensorBoard (live under
-    `scratch`, copied into `out_dir` at the end) and `out_dir / log_name`. `on_progress` gets
-    ("epoch e/E", done, total) from each tick of `train_epoch`.
+    model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    device: torch.device
+
+    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
+        """Train one epoch; its log columns (`previous` is the last row, for running totals)."""
+        ...
+
+    def validate(self) -> dict[str, float]:
+        """Validation metrics after an epoch."""
+        ...
+
+
+class Run(Protocol):
+    """Where a training writes and whom it tells (a stage's StageContext is one)."""
+
+    out_dir: Path
+    scratch: Path
+    on_progress: Callable[[str, int, int], None] | None
+    on_epoch: Callable[[dict[str, Any]], None] | None
+
+
+def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log_name: str) -> Progress:
+    """Train for `epochs` epochs, validating after each, resuming from the scratch checkpoint; returns the log
+    and the best weights (lowest `trainer.validate()[best_by]`).
+
+    The stages differ only in their data, model, loss and metrics, which their `trainer` holds; this loop
+    owns what they share. Each epoch reseeds torch's global generator with `epoch_seed` and ends with a
+    checkpoint of the model, the optimizer and the progress, so a run killed mid-epoch and started again
+    redoes that epoch and ends with the same weights as an uninterrupted run. Log rows are (epoch, seconds,
+    training columns, validation metrics); they go to `run.on_epoch`, TensorBoard (live under `run.scratch`,
+    copied into `run.out_dir` at the end) and `run.out_dir / log_name`. `run.on_progress` gets
+    ("epoch e/E", done, total) from each tick of `trainer.epoch`.
     """
-    stateful = {"model": model, "optimizer": optimizer}
+    model, scratch, on_progress = trainer.model, run.scratch, run.on_progress
+    stateful = {"model": model, "optimizer": trainer.optimizer}
     checkpoint = scratch / "last.pt"
-    progress = resume(checkpoint, device, stateful)
+    progress = resume(checkpoint, trainer.device, stateful)
     curves = Curves(scratch, progress.start_epoch)
     for epoch in range(progress.start_epoch, epochs):
         model.train()
         tic = time.perf_counter()
         torch.manual_seed(epoch_seed(seed, epoch))  # dropout and whatever else draws from the global generator
         tick = partial(on_progress, f"epoch {epoch + 1}/{epochs}") if on_progress else _quiet
-        trained = train_epoch(epoch, tick, progress.log[-1] if progress.log else None)
-        metrics = validate()
+        trained = trainer.epoch(epoch, tick, progress.log[-1] if progress.log else None)
+        metrics = trainer.validate()
         row = {"epoch": epoch + 1, "seconds": round(time.perf_counter() - tic, 3), **trained, **metrics}
         progress.record(row, metrics[best_by], model)
         curves.add(row)
-        if on_epoch:
-            on_epoch(row)
+        if run.on_epoch:
+            run.on_epoch(row)
         save_progress(checkpoint, progress, epoch, stateful)
-    curves.finish(out_dir)
-    write_csv(out_dir / log_name, progress.log)
+    curves.finish(run.out_dir)
+    write_csv(run.out_dir / log_name, progress.log)
     return progress

@@ -232,19 +232,7 @@ def train(
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
     started = time.perf_counter()
     progress = fit(
-        trainer.model,
-        trainer.optimizer,
-        epochs=cfg.epochs,
-        seed=cfg.seed,
-        train_epoch=trainer.epoch,
-        validate=trainer.validate,
-        best_by=f"val_min_ade@{cfg.k}_m",
-        scratch=ctx.scratch,
-        out_dir=out_dir,
-        log_name=CVAE_LOG_FILE,
-        device=device,
-        on_progress=ctx.on_progress,
-        on_epoch=ctx.on_epoch,
+        trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=f"val_min_ade@{cfg.k}_m", log_name=CVAE_LOG_FILE
     )
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,

@@ -150,19 +150,7 @@ def train(
     trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
     started = time.perf_counter()
     progress = fit(
-        trainer.model,
-        trainer.optimizer,
-        epochs=cfg.epochs,
-        seed=cfg.seed,
-        train_epoch=trainer.epoch,
-        validate=trainer.validate,
-        best_by=f"val_goal_fde@{goals_cfg.k}_m",
-        scratch=ctx.scratch,
-        out_dir=out_dir,
-        log_name=GOAL_LOG_FILE,
-        device=device,
-        on_progress=ctx.on_progress,
-        on_epoch=ctx.on_epoch,
+        trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=f"val_goal_fde@{goals_cfg.k}_m", log_name=GOAL_LOG_FILE
     )
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,
