@@ -89,7 +89,7 @@ def reproduce(
 
 _REPRODUCE_EXAMPLES = (
     "Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # ~11 min on a 2-core CPU\n\n"
-    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # longer CPU training\n\n"
+    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # 1 h 21 min on one CPU thread\n\n"
     "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU\n\n"
     "  fftool ablate -c pipelines/quick.toml --variants dr --protocol fair --out fair/"
 )
