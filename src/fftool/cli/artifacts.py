@@ -36,7 +36,10 @@ def artifacts_list(
     out_console.print(artifacts_table(open_store(root).list(kind)))
 
 
-@artifacts_app.command("show", epilog="Example: fftool artifacts show windows/3f9c2a")
+@artifacts_app.command(
+    "show",
+    epilog="Example: fftool artifacts show windows   # the only one; else windows/<fingerprint prefix>",
+)
 @boundary
 def artifacts_show(
     artifact_id: Annotated[str, typer.Argument(metavar="ID", help="kind/fingerprint-prefix, a prefix, or a kind.")],
@@ -55,7 +58,7 @@ def artifacts_show(
 @artifacts_app.command(
     "verify",
     epilog="Examples:\n\n  fftool artifacts verify              # every artifact, and folders that cannot be read\n\n"
-    "  fftool artifacts verify cvae/3f9c2a  # one artifact and every artifact it was built from",
+    "  fftool artifacts verify cvae/3f9c2a  # one artifact (ids: fftool artifacts list) and its inputs",
 )
 @boundary
 def artifacts_verify(

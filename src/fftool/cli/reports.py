@@ -103,7 +103,7 @@ app.command(
 
 @app.command(
     epilog="Examples:\n\n  fftool plot --benchmarks zara1 --variants baseline,dr,re -c pipelines/quick.toml\n\n"
-    "  fftool plot --benchmarks zara1 --windows 12,40 --best --out figures/ -c pipelines/quick.toml"
+    "  fftool plot --benchmarks zara1 --windows 12,25 --best --out figures/ -c pipelines/quick.toml"
 )
 @boundary
 def plot(
@@ -162,7 +162,7 @@ def plot(
         log(f"wrote {', '.join(map(str, written))}")
 
 
-@app.command(epilog="Example: fftool rescore evaluate/3f9c2a --threshold 0.2")
+@app.command(epilog="Example: fftool rescore evaluate/3f9c2a --threshold 0.2   # ids: fftool artifacts list")
 @boundary
 def rescore(
     artifact_id: Annotated[

@@ -54,7 +54,8 @@ def ingest(
 
 
 @app.command(
-    epilog="Examples: fftool forces    |    fftool forces --explain zara1 3900 --out docs/img/forces_zara1.png"
+    epilog="Examples:\n\n  fftool forces\n\n"
+    "  fftool forces --explain zara1 100 --out figures/forces_zara1_100.png   # zara1, frame 100"
 )
 @boundary
 def forces(
