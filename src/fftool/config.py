@@ -312,9 +312,9 @@ def apply_overrides(
     text and parsed again. Unknown sections fail in validation.
     """
     merged = {k: dict(v) if isinstance(v, dict) else v for k, v in raw.items()}
-    pairs = [(item, *item.partition("=")[::2]) for item in overrides]
-    for item, key, value in pairs:
-        if "=" not in item:
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep:
             raise ConfigError(f"override {item!r}: expected section.key=value, e.g. ingest.frame_stride=10")
         _set(merged, key.strip(), _parse_value(value.strip()), f"override {item!r}")
     for key, value in (values or {}).items():

@@ -110,27 +110,12 @@ def run(
         if existing is not None and stage.name in targets:  # the caller reads it: check its bytes first
             store.check_inputs({stage.name: existing}, {stage.name: stage.command})
         if existing is None:
-            lock = store.lock(stage.name, fp)
-            if not _try(lock):
-                log(f"stage {stage.name!r}: another fftool process is building it (fp {fp[:12]}…) - waiting")
-            with lock:  # the other process may have built it meanwhile
+            with store.lock(stage.name, fp):  # another process may have built it while we waited
                 existing = None if stage.name in forced else _cached(store, stage, fp)
                 if existing is None:
                     existing = _build(cfg, store, item, built, runtime or Runtime(), benchmark)
         built[stage.name] = existing
     return built
-
-
-def _try(lock: Any) -> bool:
-    """Take `lock` if it is free (then release it to the `with` that follows); False if it is held."""
-    from filelock import Timeout
-
-    try:
-        lock.acquire(timeout=0)
-    except Timeout:
-        return False
-    lock.release()
-    return True
 
 
 def _cached(store: ArtifactStore, stage: Stage, fp: str) -> Artifact | None:

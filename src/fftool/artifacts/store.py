@@ -24,12 +24,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from filelock import FileLock
+from filelock import FileLock, Timeout
 
 from fftool import __version__
 from fftool.artifacts.hashing import sha256_file
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
-from fftool.ui import warn
+from fftool.ui import log, warn
 
 MANIFEST = "manifest.json"
 _INCOMPLETE = ".incomplete"
@@ -334,12 +334,23 @@ class ArtifactStore:
                 found.extend(item for item in self.chain(upstream) if item not in found)
         return found
 
-    def lock(self, kind: str, fp: str) -> FileLock:
-        """The per-fingerprint lock builds hold; one object per path, so it is re-entrant in a process."""
-        path = self.root / _LOCKS / f"{kind}-{fp[:_FP_DIR_LEN]}.lock"
-        if path not in self._locks:  # filelock creates the folder when it first acquires
-            self._locks[path] = FileLock(path)
-        return self._locks[path]
+    def _lock_path(self, kind: str, fp: str) -> Path:
+        return self.root / _LOCKS / f"{kind}-{fp[:_FP_DIR_LEN]}.lock"
+
+    @contextlib.contextmanager
+    def lock(self, kind: str, fp: str) -> Iterator[None]:
+        """Hold the per-fingerprint lock builds take (re-entrant in a process); say so when another holds it."""
+        path = self._lock_path(kind, fp)
+        lock = self._locks.setdefault(path, FileLock(path))  # filelock creates the folder when it first acquires
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            log(f"{kind}/{fp[:_FP_DIR_LEN]}: another fftool process is building it - waiting")
+            lock.acquire()
+        try:
+            yield
+        finally:
+            lock.release()
 
     def clean_incomplete(self) -> list[Path]:
         """Remove build folders whose process has died (a killed build leaves one behind)."""
@@ -369,14 +380,14 @@ class ArtifactStore:
         exception (KeyboardInterrupt included) the temporary folder is removed and an existing artifact
         at the destination is left untouched.
         """
-        lock = self.lock(kind, fp)
         try:
-            with lock:
+            with self.lock(kind, fp):
                 yield from self._build_locked(kind, fp, schema_version, params, inputs)
         finally:
             if self._fresh and not self.path_for(kind, fp).exists():  # a failed first build leaves no trace
-                Path(lock.lock_file).unlink(missing_ok=True)
-                for folder in (Path(lock.lock_file).parent, self.root):
+                lock_path = self._lock_path(kind, fp)
+                lock_path.unlink(missing_ok=True)
+                for folder in (lock_path.parent, self.root):
                     _remove_empty(folder)
 
     def _build_locked(
