@@ -17,7 +17,7 @@ from fftool.learning import cvae_model
 from fftool.learning.batches import SceneBatch, load_scene_set
 from fftool.learning.protocols import constant_velocity, protocol_goals, with_past_forces
 from fftool.learning.training import save_checkpoint
-from fftool.stages.evaluate import Predictor
+from fftool.learning.sampling import Predictor
 
 
 def test_paper_protocol_gives_every_sample_the_goal_closest_to_the_truth() -> None:
@@ -62,7 +62,8 @@ def _predictor(tmp_path: Path, protocol: str, sampled: np.ndarray) -> Predictor:
         },
     )
     artifact = type("Artifact", (), {"file": lambda self, name: tmp_path / name})()
-    return Predictor(EvaluateConfig(protocol=protocol, k=4), artifact, sampled, 8, 12, torch.device("cpu"))
+    trained = cvae_model.load_model(artifact, torch.device("cpu"))
+    return Predictor(EvaluateConfig(protocol=protocol, k=4), trained, sampled, 8, 12, torch.device("cpu"))
 
 
 def _perturb_future(batch: SceneBatch) -> SceneBatch:

@@ -29,11 +29,9 @@ from fftool.artifacts.schema import GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FI
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import EvaluateConfig, PipelineConfig
 from fftool.errors import ArtifactMissing, FftoolError
-from fftool.learning.batches import AgentWindows, SceneBatch, SceneSet, load_agent_windows, load_scene_set
-from fftool.learning.cvae_model import load_model, sample
-from fftool.learning.features import prepare
-from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
-from fftool.learning.training import generator
+from fftool.learning.batches import AgentWindows, SceneSet, load_agent_windows, load_scene_set
+from fftool.learning.cvae_model import load_model
+from fftool.learning.sampling import Predictor, plan_batches, sample_batches
 from fftool.science.metrics import agent_metrics, collision_count
 from fftool.stages.contract import Stage, StageContext
 
@@ -88,60 +86,6 @@ def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: 
     return np.load(goals.file(GOALS_FILE), mmap_mode="r")[rows]
 
 
-class Predictor:
-    """K world-frame futures (B, K, A, T, 2) and the goals they used (B, K, A, 2) for a padded batch."""
-
-    def __init__(
-        self,
-        cfg: EvaluateConfig,
-        cvae: Artifact | None,
-        sampled_goals: np.ndarray | None,
-        obs_len: int,
-        pred_len: int,
-        device: torch.device,
-    ) -> None:
-        self.cfg, self.obs_len, self.pred_len, self.device = cfg, obs_len, pred_len, device
-        self.sampled_goals = sampled_goals
-        self.gen = generator(cfg.seed, device)
-        self.model = None
-        self.variant = "cv"
-        if cvae is not None:
-            self.model, self.model_cfg, self.forces_cfg, self.dt_s = load_model(cvae, device)
-            self.variant = self.model_cfg.variant
-
-    @property
-    def protocol(self) -> str:
-        """The goal protocol actually used: none for predictors that read no goal."""
-        return "none" if self.variant in ("cv", "baseline") else self.cfg.protocol
-
-    def goals(self, batch: SceneBatch, positions: np.ndarray) -> torch.Tensor:
-        """(B, K, A, 2) world goals per sample under the protocol; the last observed position when unused."""
-        k = self.cfg.k
-        if self.protocol == "none":
-            return batch.xy[:, None, :, self.obs_len - 1].expand(-1, k, -1, -1)
-        sampled = None
-        if self.sampled_goals is not None:
-            safe = np.where(positions >= 0, positions, 0)
-            sampled = torch.as_tensor(self.sampled_goals[safe], dtype=torch.float32, device=self.device)
-        return protocol_goals(self.protocol, sampled, batch.xy[:, :, -1], k)
-
-    def __call__(self, batch: SceneBatch, goals: torch.Tensor) -> torch.Tensor:
-        k, obs_len = self.cfg.k, self.obs_len
-        if self.model is None:
-            cfg = self.cfg
-            past = batch.xy[:, :, :obs_len]
-            return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
-        B, _, A, _ = goals.shape
-        if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
-            batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
-        else:
-            goal, draws = goals[:, 0], k
-        batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
-        prepared = prepare(batch, self.variant, obs_len, goal=goal)
-        futures = sample(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen)
-        return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
-
-
 def _real_agents(values: torch.Tensor, mask: np.ndarray) -> np.ndarray:
     """(B, A, ...) -> (real agents, ...) in window-major order."""
     return values.cpu().numpy()[mask]
@@ -185,18 +129,14 @@ def sample_and_score(
     if len(scenes.data) == 0:
         raise FftoolError(_no_agent_windows(benchmark, cfg.part, obs_len + pred_len))
     sampled = load_sampled_goals(goals, scenes, benchmark, cfg.part) if goals is not None else None
-    predictor = Predictor(cfg, cvae, sampled, obs_len, pred_len, device)
-    rng = np.random.default_rng(cfg.seed)
-    plan = scenes.plan(np.arange(scenes.windows), cfg.batch_windows, cfg.max_agent_pairs, rng)
+    trained = load_model(cvae, device) if cvae is not None else None
+    predictor = Predictor(cfg, trained, sampled, obs_len, pred_len, device)
+    plan = plan_batches(scenes, cfg)
+    batches = sample_batches(predictor, scenes, plan, predictor.goals, device)
     parts: dict[str, list[np.ndarray]] = {}
     started = time.perf_counter()
     with torch.no_grad():
-        for done, members in enumerate(plan):
-            batch = scenes.batch(members).to(device)
-            rows = batch.row.cpu().numpy()
-            positions = np.where(rows >= 0, np.searchsorted(scenes.data.row, rows), -1)
-            goals_k = predictor.goals(batch, positions)
-            futures = predictor(batch, goals_k)
+        for done, (batch, goals_k, futures) in enumerate(batches):
             metrics = agent_metrics(futures, batch.xy[:, :, obs_len:], batch.agent_mask, cfg.collision_threshold_m)
             mask = batch.agent_mask.cpu().numpy()
             take = partial(_real_agents, mask=mask)

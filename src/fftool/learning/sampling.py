@@ -1,0 +1,100 @@
+"""Drawing K futures from a trained predictor: the one sampling path of `evaluate`, `predict` and the API.
+
+`Predictor` turns a padded `SceneBatch` and per-sample goals into K world-frame futures; `plan_batches`
+and `sample_batches` cut a `SceneSet` into batches and draw them in a seeded order. `evaluate` scores
+what comes out, `predict` writes it: the same windows, seed and model give the same numbers in both.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import torch
+
+from fftool.config import EvaluateConfig
+from fftool.learning.batches import SceneBatch, SceneSet
+from fftool.learning.cvae_model import Trained, sample
+from fftool.learning.features import prepare
+from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
+from fftool.learning.training import generator
+
+# (batch, positions of its slots in the scene set's rows, -1 for padding) -> (B, K, A, 2) world goals
+GoalsOf = Callable[[SceneBatch, np.ndarray], torch.Tensor]
+
+
+class Predictor:
+    """K world-frame futures (B, K, A, T, 2) and the goals they used (B, K, A, 2) for a padded batch."""
+
+    def __init__(
+        self,
+        cfg: EvaluateConfig,
+        trained: Trained | None,
+        sampled_goals: np.ndarray | None,
+        obs_len: int,
+        pred_len: int,
+        device: torch.device,
+    ) -> None:
+        self.cfg, self.obs_len, self.pred_len, self.device = cfg, obs_len, pred_len, device
+        self.sampled_goals = sampled_goals
+        self.gen = generator(cfg.seed, device)
+        self.model = None
+        self.variant = "cv"
+        if trained is not None:
+            self.model, self.model_cfg, self.forces_cfg, self.dt_s = trained
+            self.variant = self.model_cfg.variant
+
+    @property
+    def protocol(self) -> str:
+        """The goal protocol actually used: none for predictors that read no goal."""
+        return "none" if self.variant in ("cv", "baseline") else self.cfg.protocol
+
+    def goals(self, batch: SceneBatch, positions: np.ndarray) -> torch.Tensor:
+        """(B, K, A, 2) world goals per sample under the protocol; the last observed position when unused."""
+        k = self.cfg.k
+        if self.protocol == "none":
+            return batch.xy[:, None, :, self.obs_len - 1].expand(-1, k, -1, -1)
+        sampled = None
+        if self.sampled_goals is not None:
+            safe = np.where(positions >= 0, positions, 0)
+            sampled = torch.as_tensor(self.sampled_goals[safe], dtype=torch.float32, device=self.device)
+        return protocol_goals(self.protocol, sampled, batch.xy[:, :, -1], k)
+
+    def __call__(self, batch: SceneBatch, goals: torch.Tensor) -> torch.Tensor:
+        k, obs_len = self.cfg.k, self.obs_len
+        if self.model is None:
+            cfg = self.cfg
+            past = batch.xy[:, :, :obs_len]
+            return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
+        B, _, A, _ = goals.shape
+        if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
+            batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
+        else:
+            goal, draws = goals[:, 0], k
+        if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
+            batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
+        prepared = prepare(batch, self.variant, obs_len, goal=goal)
+        futures = sample(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen)
+        return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
+
+
+def plan_batches(scenes: SceneSet, cfg: EvaluateConfig) -> list[np.ndarray]:
+    """Every window of the scene set cut into padded batches, in an order drawn from `cfg.seed`."""
+    rng = np.random.default_rng(cfg.seed)
+    return scenes.plan(np.arange(scenes.windows), cfg.batch_windows, cfg.max_agent_pairs, rng)
+
+
+@torch.no_grad()
+def sample_batches(
+    predictor: Predictor, scenes: SceneSet, plan: list[np.ndarray], goals_of: GoalsOf, device: torch.device
+) -> Iterator[tuple[SceneBatch, torch.Tensor, torch.Tensor]]:
+    """(batch, goals (B, K, A, 2), futures (B, K, A, T, 2)) for each planned batch, in plan order.
+
+    The predictor's generator runs through the batches in this order, so the plan fixes every number.
+    """
+    for members in plan:
+        batch = scenes.batch(members).to(device)
+        rows = batch.row.cpu().numpy()
+        positions = np.where(rows >= 0, np.searchsorted(scenes.data.row, rows), -1)
+        goals = goals_of(batch, positions)
+        yield batch, goals, predictor(batch, goals)
