@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
-from fftool.science.metrics import agent_metrics, collision_count
+from fftool.science.metrics import agent_metrics, col_rate, collision_count, gt_collisions
 
 
 def _line(x0: float, y: float, dx: float = 0.0, steps: int = 4) -> torch.Tensor:
@@ -79,3 +80,83 @@ def test_joint_variant_uses_one_sample_per_window() -> None:
     pred[0, 0, 0] = truth[0, 0] + torch.tensor([0.95, 0.0])  # now sample 0 puts agent 0 on agent 1
     m = agent_metrics(pred, truth, torch.ones(1, 2, dtype=torch.bool), 0.1)
     assert collision_count(m.joint_collisions) == 4 and m.collisions.sum() == 0
+
+
+def _col_reference(pred: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """COL written out with loops from EigenTrajectory's definition (utils/metrics.py compute_batch_col):
+    4 points per step, the first 14 dense points, strictly below 0.2 m, same sample index, in %."""
+    B, K, A, T, _ = pred.shape
+    out = np.zeros((B, A))
+    for b in range(B):
+        for n in range(A):
+            if not mask[b, n]:
+                continue
+            hits = 0
+            for k in range(K):
+                hit = False
+                for m in range(A):
+                    if m == n or not mask[b, m]:
+                        continue
+                    for j in range(min(14, 4 * (T - 1) + 1)):
+                        t, f = divmod(j, 4)
+                        here = pred[b, k, n, t] + (f / 4) * (pred[b, k, n, min(t + 1, T - 1)] - pred[b, k, n, t])
+                        there = pred[b, k, m, t] + (f / 4) * (pred[b, k, m, min(t + 1, T - 1)] - pred[b, k, m, t])
+                        hit |= bool(np.linalg.norm(here - there) < 0.2)
+                hits += hit
+            out[b, n] = 100 * hits / K
+    return out
+
+
+def test_col_matches_a_loop_reference_on_random_crowds() -> None:
+    gen = torch.Generator().manual_seed(0)
+    pred = torch.rand(3, 5, 4, 12, 2, generator=gen) * 1.5  # crowded: many contacts, many misses
+    mask = torch.tensor([[True, True, True, False], [True, True, False, False], [True, False, False, False]])
+    col = col_rate(pred, mask)
+    np.testing.assert_allclose(col.numpy(), _col_reference(pred.numpy(), mask.numpy()), atol=1e-4)
+    assert 0 < col[mask].mean() < 100 and (col[~mask] == 0).all()
+
+
+def test_col_counts_samples_with_a_contact_at_the_same_index_only() -> None:
+    """Agent 1 walks 3 m from agent 0. Sample 0: it comes 0.1 m close at step 1 (a collision). Sample 2 of
+    agent 0 walks exactly on sample 1 of agent 1, a different index (no collision)."""
+    pred = torch.zeros(1, 3, 2, 12, 2)
+    pred[0, :, 1, :, 1] = 3.0
+    pred[0, 0, 1, 1, 1] = 0.1
+    pred[0, 2, 0, :, 1] = 6.0
+    pred[0, 1, 1, :, 1] = 6.0
+    col = col_rate(pred, torch.ones(1, 2, dtype=torch.bool))
+    assert col.tolist() == [[pytest.approx(100 / 3), pytest.approx(100 / 3)]]
+
+
+def test_col_sees_a_crossing_between_two_steps_and_only_in_the_first_14_dense_points() -> None:
+    """The two agents swap places in one step: 2 m apart at both steps, 0 m at the half step."""
+    pred = torch.zeros(1, 1, 2, 12, 2)
+    pred[0, 0, 0, 1:, 0] = 2.0  # agent 0: (0, 0) then (2, 0)
+    pred[0, 0, 1, 0, 0] = 2.0  # agent 1: (2, 0), (0, 0), then far away
+    pred[0, 0, 1, 2:] = 5.0
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    assert col_rate(pred, mask).tolist() == [[100.0, 100.0]]
+    assert agent_metrics(pred, pred[:, 0], mask, 0.1).collisions.sum() == 0  # NC sees no contact at any step
+    # Agent 1 approaches agent 0 (at the origin) at 0.8 m per step from step 3: 0.05 m away at 3.25 steps
+    # (dense point 13, the last one COL reads) when it starts 0.25 m away, and only at 3.5 steps (dense
+    # point 14, not read) when it starts 0.45 m away.
+    for start, expected in ((0.25, 100.0), (0.45, 0.0)):
+        late = torch.zeros(1, 1, 2, 12, 2)
+        late[0, 0, 1, :, 1] = 5.0
+        late[0, 0, 1, 3:, 1] = start - 0.8 * torch.arange(9.0)
+        assert col_rate(late, mask).tolist() == [[expected, expected]], start
+
+
+def test_col_gt_compares_the_best_sample_with_the_neighbours_truth_between_steps() -> None:
+    """Agent 0's best sample crosses agent 1's true path at a half step; its own truth never counts."""
+    truth = torch.zeros(1, 2, 3, 2)
+    truth[0, 0, :, 0] = torch.tensor([0.0, 2.0, 4.0])  # agent 0 walks +x
+    truth[0, 1, :, 0] = torch.tensor([2.0, 0.0, -2.0])  # agent 1 walks -x: they swap at t = 0.5
+    truth[0, 1, :, 1] = 1.0  # ... 1 m to the side, so the truths never collide
+    pred = truth[:, None].clone()  # K = 1, every sample exact: Col-II of the truth itself
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    assert agent_metrics(pred, truth, mask, 0.1).col_gt.tolist() == [[0, 0]]
+    pred[0, 0, 1, :, 1] = 0.0  # agent 1's prediction moves onto agent 0's line: crosses agent 0's truth at t=0.5
+    m = agent_metrics(pred, truth, mask, 0.1)
+    assert m.col_gt.tolist() == [[0, 1]]  # agent 1's path hits agent 0's truth; agent 0's path is its truth
+    assert gt_collisions(truth, truth, torch.tensor([[True, False]])).sum() == 0  # padded neighbours do not count

@@ -1,0 +1,57 @@
+"""Bootstrap confidence intervals over test windows, and paired differences between predictors.
+
+The unit resampled is the window, not the agent: the agents of one window share their neighbours (and
+each other's collisions), so they are not independent draws. A resample draws W windows with replacement
+from the W windows of a test part; a metric of that resample is a sum over its windows (NC, Col-II) or a
+ratio of sums (minADE, minFDE, COL: the mean over the agent-windows it holds). One (R, W) matrix of draw
+counts serves every metric and every predictor of a benchmark, so the difference of two predictors'
+replicates is a paired bootstrap: the same windows, resampled together.
+
+Why not scipy.stats.bootstrap: it redraws per call, so pairing across predictors and metrics would rest on
+equal seeds and equal sample sizes, and its ratio statistic over paired (sum, count) arrays is no shorter.
+Here a resample is one row of draw counts (index draws summed per window with np.bincount), and every
+replicate is a matrix product with the per-window sums: no loop over resamples, agents or windows.
+Intervals are percentile intervals (Efron's), which need no normality and keep counts non-negative.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def window_draws(n_windows: int, resamples: int, seed: int | Sequence[int]) -> np.ndarray:
+    """(R, W) int: how often each of W windows is drawn in each of R resamples of W draws with replacement."""
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, n_windows, size=(resamples, n_windows))  # (R, W) window indices
+    flat = draws + np.arange(resamples)[:, None] * n_windows  # one bincount slot per (resample, window)
+    return np.bincount(flat.ravel(), minlength=resamples * n_windows).reshape(resamples, n_windows)
+
+
+def window_sums(values: np.ndarray, window: np.ndarray, n_windows: int) -> np.ndarray:
+    """(W,) the sum of per-agent-window `values` in each window; `window` (N,) holds indices in [0, W)."""
+    return np.bincount(window, weights=values.astype(np.float64), minlength=n_windows)
+
+
+def replicate_sums(draws: np.ndarray, values: np.ndarray, window: np.ndarray) -> np.ndarray:
+    """(R,) the sum of `values` over each resample's agent-windows (a window drawn twice counts twice)."""
+    return draws @ window_sums(values, window, draws.shape[1])
+
+
+def replicate_means(draws: np.ndarray, values: np.ndarray, window: np.ndarray) -> np.ndarray:
+    """(R,) the mean of `values` over each resample's agent-windows: a ratio of sums, not a mean of window
+    means, so each agent-window weighs the same as in the full-sample mean."""
+    return replicate_sums(draws, values, window) / replicate_sums(draws, np.ones(len(values)), window)
+
+
+def percentile_interval(replicates: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """The (1 − level)/2 and (1 + level)/2 quantiles of the bootstrap replicates."""
+    low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])
+    return float(low), float(high)
+
+
+def windows_of(window_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct window ids (W,) in sorted order and each agent-window's index into them (N,)."""
+    ids, index = np.unique(window_ids, return_inverse=True)
+    return ids, index
