@@ -46,7 +46,17 @@ METRIC_DEFINITIONS: Final = {
     "nc": "sum over windows of the (m, n, t) with m != n real agents of the window and ||y_m^t - y_n^t|| < gamma, "
     "each agent on its best-ADE sample (paper); ordered pairs (each contact twice); unordered = ordered / 2; "
     "joint = one sample per window, the one with the smallest summed ADE",
+    "col": "COL (EigenTrajectory, SingularTrajectory utils/metrics.py compute_batch_col): mean over agent-windows "
+    "of the % of the K samples whose path comes strictly within 0.2 m of another real agent's sample with the "
+    "same index (the K samples are drawn jointly per window), on the first 14 points of the paths interpolated "
+    "at 4 points per step (the first 3.25 steps after the first predicted position); independent of gamma",
+    "col_gt": "Col-II (Trajnet++ trajnetplusplustools metrics.collision, person_radius 0.1 m): number of "
+    "agent-windows whose best-ADE sample comes within 0.2 m (<=) of another real agent's ground truth at the "
+    "same time, on both paths split at 2 points per step; rate = col_gt / agent_windows; independent of gamma",
 }
+METRIC_COLUMNS: Final = ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions", "col", "col_gt")
+# Windows × K × agents² per rescoring pass: bounds the memory of COL's (B, K, 14, A, A) distances.
+_RESCORE_PAIRS: Final = 200_000
 
 
 def reads_goal(cfg: PipelineConfig) -> bool:
@@ -148,6 +158,8 @@ def sample_and_score(
                 "best_k": take(metrics.best_k),
                 "collisions": take(metrics.collisions),
                 "joint_collisions": take(metrics.joint_collisions),
+                "col": take(metrics.col),
+                "col_gt": take(metrics.col_gt),
                 "goal": take(goals_k.transpose(1, 2)),
                 "pred": take(futures.transpose(1, 2)),
             }
@@ -200,6 +212,8 @@ def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str,
             "best_ade": {pairs: collision_count(collisions, pairs) for pairs in ("ordered", "unordered")},
             "joint": {pairs: collision_count(joint, pairs) for pairs in ("ordered", "unordered")},
         },
+        "col": float(np.mean(columns["col"])),
+        "col_gt": int(np.sum(columns["col_gt"])),
         "definitions": METRIC_DEFINITIONS,
     }
 
@@ -208,7 +222,8 @@ def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: 
     """Per-agent metrics recomputed from saved predictions (e.g. at another γ) without sampling again.
 
     predictions: an evaluation's predictions.parquet; data: the agent-windows of the same part (for
-    the ground truth). Returns the predictions file's metric columns, in its row order.
+    the ground truth). Returns the predictions file's metric columns and COL and Col-II (METRIC_COLUMNS),
+    in its row order. Windows are scored in passes of at most _RESCORE_PAIRS windows × K × agents².
     """
     position = np.searchsorted(data.row, predictions["agent_row"].to_numpy())
     pred = np.stack(predictions["pred"].to_numpy()).reshape(len(predictions), k, -1, 2)
@@ -224,16 +239,28 @@ def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: 
     padded_pred[which, slot] = torch.as_tensor(pred, dtype=torch.float32)
     padded_truth[which, slot] = torch.as_tensor(truth, dtype=torch.float32)
     mask[which, slot] = True
-    metrics = agent_metrics(padded_pred.transpose(1, 2), padded_truth, mask, threshold_m)
-    return {
-        name: getattr(metrics, name)[which, slot].numpy()
-        for name in ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions")
-    }
+    step = max(1, _RESCORE_PAIRS // (k * A * A))
+    passes = [
+        agent_metrics(padded_pred[lo : lo + step].transpose(1, 2), padded_truth[lo : lo + step], mask[lo : lo + step],
+                      threshold_m)
+        for lo in range(0, B, step)
+    ]  # fmt: skip
+    return {name: torch.cat([getattr(m, name) for m in passes])[which, slot].numpy() for name in METRIC_COLUMNS}
 
 
 def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, Any]:
     """An evaluate artifact's summary recomputed from its saved predictions with collision threshold
-    `threshold_m` (command `fftool rescore`): no sampling, so only the collision counts can change."""
+    `threshold_m` (command `fftool rescore`): no sampling, so only the NC counts can change; COL and Col-II
+    are computed for evaluations built before they existed."""
+    stats = evaluation.manifest.stats
+    cfg = EvaluateConfig(part=stats["part"], k=stats["k"], seed=stats["seed"], collision_threshold_m=threshold_m)
+    columns = rescored_columns(store, evaluation, threshold_m)
+    return summary(columns, cfg, stats["benchmark"], stats["variant"], stats["protocol"])
+
+
+def rescored_columns(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, np.ndarray]:
+    """An evaluation's per-agent metric columns (METRIC_COLUMNS) recomputed from its saved predictions, NC at
+    `threshold_m`, with each row's window_id: what `rescore` prints and what the report's intervals resample."""
     check_schema(evaluation, NAME, VERSION, "fftool evaluate")
     windows = store.lookup("windows", evaluation.manifest.inputs["windows"])
     if windows is None:
@@ -244,10 +271,9 @@ def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: fl
         {"evaluate": evaluation, "windows": windows}, {"evaluate": "fftool evaluate", "windows": "fftool ingest"}
     )
     stats = evaluation.manifest.stats
-    cfg = EvaluateConfig(part=stats["part"], k=stats["k"], seed=stats["seed"], collision_threshold_m=threshold_m)
-    data = load_agent_windows(windows, stats["benchmark"], cfg.part)
-    columns = rescore(pd.read_parquet(evaluation.file(PREDICTIONS_FILE)), data, cfg.k, threshold_m)
-    return summary(columns, cfg, stats["benchmark"], stats["variant"], stats["protocol"])
+    predictions = pd.read_parquet(evaluation.file(PREDICTIONS_FILE), columns=["window_id", "agent_row", "pred"])
+    data = load_agent_windows(windows, stats["benchmark"], stats["part"])
+    return rescore(predictions, data, stats["k"], threshold_m) | {"window_id": predictions["window_id"].to_numpy()}
 
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
