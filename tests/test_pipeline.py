@@ -9,7 +9,7 @@ import pytest
 
 from fftool import pipeline
 from fftool.artifacts.store import ArtifactStore
-from fftool.config import load_config, predictor_config
+from fftool.config import load_config, predictor_config, seeded_config
 from fftool.errors import FftoolError
 
 
@@ -93,3 +93,22 @@ def test_a_missing_artifact_names_the_command_with_benchmark_and_variant(raw_tre
     pipeline.run(cfg, store, ["forces"])
     with pytest.raises(FftoolError, match=r"run `fftool train-cvae --benchmarks zara1 --variant dr` first"):
         pipeline.run(cfg, store, ["evaluate"], upstream=False, benchmark="zara1")
+
+
+def test_a_grid_seed_changes_the_seeded_stages_and_nothing_upstream(raw_tree: Path) -> None:
+    """`--seeds`: seed 0 keeps every fingerprint (the existing cells are grid seed 0); another seed changes
+    the goal U-Net, its goal samples, the CVAE and the evaluation, never tracks, windows, forces or maps."""
+    cfg = _cfg(raw_tree)
+
+    def fingerprints(c, predictor: str) -> dict[str, str]:
+        cell = predictor_config(c, predictor)
+        return {r.stage.name: r.fingerprint for r in pipeline.resolve(cell, ["evaluate"], "zara1")}
+
+    for predictor, seeded in (("re", {"goal", "goals", "cvae", "evaluate"}), ("cv", {"evaluate"})):
+        base = fingerprints(cfg, predictor)
+        assert fingerprints(seeded_config(cfg, 0), predictor) == base
+        one, two = fingerprints(seeded_config(cfg, 1), predictor), fingerprints(seeded_config(cfg, 2), predictor)
+        assert {name for name in base if one[name] != base[name]} == seeded
+        assert {name for name in base if two[name] != one[name]} == seeded
+        assert {"tracks", "windows"} <= set(base) - seeded
+    assert {"forces", "maps"} <= set(fingerprints(cfg, "re")) - {"goal", "goals", "cvae", "evaluate"}

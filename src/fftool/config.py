@@ -12,7 +12,7 @@ import math
 import sys
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
@@ -264,6 +264,13 @@ class ReportConfig(_Section):
     collision_sample: Literal["best_ade", "joint"] = "best_ade"  # per-agent best-ADE (paper) or one per window
     constant_velocity: bool = True  # add the cv reference rows
     out_dir: str = "reports"  # relative to the artifact root unless absolute
+    # Seeds as a grid dimension (`--seeds`): every cell is trained and evaluated once per seed, each seed set
+    # in SEEDED_SECTIONS; empty = one run with each section's own seed.
+    seeds: tuple[Annotated[int, Field(ge=0)], ...] = ()
+    # Percentile intervals from a bootstrap over test windows (science/bootstrap.py), paired across predictors.
+    bootstrap_resamples: int = Field(2000, ge=100)
+    bootstrap_seed: int = 0
+    confidence: float = Field(0.95, gt=0, lt=1)
 
 
 class PipelineConfig(_Section):
@@ -279,6 +286,19 @@ class PipelineConfig(_Section):
     cvae: CVAEConfig = CVAEConfig()
     evaluate: EvaluateConfig = EvaluateConfig()
     report: ReportConfig = ReportConfig()
+
+
+# What a grid seed sets: every stage whose result depends on random numbers of training or sampling. The
+# data stages (tracks, windows, forces) draw none and maps' k-means seed describes the scene, not a run, so
+# a seed leaves them, and their fingerprints, alone.
+SEEDED_SECTIONS: Final = ("goal", "goals", "cvae", "evaluate")
+
+
+def seeded_config(cfg: PipelineConfig, seed: int) -> PipelineConfig:
+    """The configuration of one grid seed: `seed` in every section of SEEDED_SECTIONS. Seed 0 is the default
+    of each, so a profile that sets no seed keeps its artifacts (and fingerprints) as grid seed 0."""
+    sections = {name: getattr(cfg, name).model_copy(update={"seed": seed}) for name in SEEDED_SECTIONS}
+    return cfg.model_copy(update=sections)
 
 
 def predictor_config(cfg: PipelineConfig, predictor: str) -> PipelineConfig:
