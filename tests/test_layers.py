@@ -51,7 +51,7 @@ def _package(name: str) -> str:
 def test_the_layout_is_the_documented_one() -> None:
     assert {_package(name) for name in MODULES} == {
         "",  # fftool/__init__.py
-        "__main__", "errors", "ui", "config", "paper", "pipeline",
+        "__main__", "errors", "ui", "config", "paper", "pipeline", "api",
         "artifacts", "dataset", "science", "models", "learning", "stages", "reporting", "cli",
     }  # fmt: skip
     assert {
@@ -102,3 +102,9 @@ def test_only_the_top_layers_import_the_cli_or_the_engine() -> None:
     for module in MODULES:
         if _package(module) not in {"cli", "reporting", "__main__", "pipeline"}:
             assert not {_package(name) for name in _imports(module)} & {"cli", "pipeline"}, module
+
+
+def test_the_api_needs_no_cli_engine_nor_stage() -> None:
+    # fftool.api is for code that embeds the model: it reads artifacts and samples, never runs the pipeline.
+    packages = {_package(name) for name in _imports("api") if not name.startswith("ext:")}
+    assert not packages & {"cli", "pipeline", "stages", "reporting"}, packages

@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from fftool.artifacts.schema import TRACKS_FILE
 from fftool.config import IngestConfig
 from fftool.dataset.rawfiles import RawTable, _read_fast, _read_slow, read_raw
+from fftool.dataset.windowing import slice_sequence
 from fftool.errors import RawDataError
 from fftool.stages import tracks
-from fftool.stages.windows import slice_sequence
 
 from .conftest import walker_rows, write_rows
 

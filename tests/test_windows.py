@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fftool.stages.windows import slice_sequence
+from fftool.dataset.windowing import slice_sequence
 
 L, OBS = 20, 8
 

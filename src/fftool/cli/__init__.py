@@ -1,7 +1,8 @@
 """The `fftool` command line: thin commands over the stages, the engine and the reports.
 
 `fftool.cli.app` holds the Typer app, the one error boundary and the shared options; each module adds
-its commands: `data` (fetch-data), `stages` (one per pipeline stage), `reports` (reproduce/ablate, plot,
+its commands: `data` (fetch-data), `stages` (one per pipeline stage), `predict` (your own tracks), `reports`
+(reproduce/ablate, plot,
 rescore) and `artifacts` (list, show, verify). The science lives in the packages below.
 """
 
@@ -9,7 +10,7 @@ from importlib import import_module
 
 from fftool.cli.app import app
 
-for _module in ("data", "stages", "reports", "artifacts"):  # importing registers the commands, in this order
+for _module in ("data", "stages", "predict", "reports", "artifacts"):  # importing registers the commands, in this order
     import_module(f"fftool.cli.{_module}")
 
 __all__ = ["app"]

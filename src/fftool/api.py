@@ -1,0 +1,217 @@
+"""Use a trained ForceFormer in your own code: load it once, hand it observed positions, get K futures.
+
+    from fftool.api import load
+    model = load("cvae/3f9c2a")                      # an artifact id, or the artifact's folder
+    futures = model.predict(past, agent_mask, k=20)  # (B, A, 8, 2), (B, A) -> (B, K, A, 12, 2)
+
+`predict_tracks` does the same for a table of tracks (time, agent, x, y), as `fftool predict` does.
+Both draw through the sampler `evaluate` uses (learning/sampling.py), so a window `evaluate` scored
+gets the same numbers here for the same model and seed. Nothing here needs the command line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from fftool.artifacts.store import Artifact, ArtifactStore, check_schema, default_root
+from fftool.config import EvaluateConfig, GoalsConfig
+from fftool.dataset.scenes import PRED_LEN
+from fftool.dataset.steps import observed_windows, prediction_steps, to_steps
+from fftool.errors import FftoolError, UsageError
+from fftool.learning import goal_model
+from fftool.learning.batches import SceneMaps
+from fftool.learning.cvae_model import Trained, load_model
+from fftool.learning.observed import padded_batch, scene_set
+from fftool.learning.sampling import Predictor, plan_batches, sample_batches
+from fftool.learning.training import generator
+
+GOAL_VARIANTS = ("goal", "dr", "re")
+
+
+def _device(name: str | torch.device) -> torch.device:
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise UsageError("device cuda was asked for, but torch sees no CUDA device; use cpu")
+    return device
+
+
+def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> Artifact:
+    """An artifact of `kind` by id (`cvae/3f9c2a`, under `root` or the default root) or by its folder."""
+    folder = Path(ref)
+    if folder.is_dir() and (folder / "manifest.json").is_file():
+        artifact = ArtifactStore(folder.resolve().parent.parent).resolve(f"{folder.parent.name}/{folder.name}")
+    else:
+        artifact = ArtifactStore(root or default_root()).resolve(str(ref))
+    if artifact.kind != kind:
+        raise UsageError(f"{ref}: a {artifact.kind} artifact, expected a {kind} artifact")
+    return artifact
+
+
+@dataclass(frozen=True)
+class Model:
+    """A trained CVAE with the window layout it was trained on."""
+
+    trained: Trained
+    obs_len: int
+    pred_len: int
+    device: torch.device
+
+    @property
+    def variant(self) -> str:
+        return self.trained.config.variant
+
+    @property
+    def step_s(self) -> float:
+        """Seconds per step of the data it was trained on."""
+        return float(self.trained.dt_s or 0.4)
+
+    def predictor(self, k: int, seed: int, protocol: str = "oracle", sampled: np.ndarray | None = None) -> Predictor:
+        cfg = EvaluateConfig(k=k, seed=seed, protocol=protocol)
+        return Predictor(cfg, self.trained, sampled, self.obs_len, self.pred_len, self.device)
+
+    def predict(
+        self, past: np.ndarray, agent_mask: np.ndarray, *, k: int = 20, goals: np.ndarray | None = None, seed: int = 0
+    ) -> np.ndarray:
+        """K futures (B, K, A, pred_len, 2) in metres for observed positions past (B, A, obs_len, 2).
+
+        agent_mask (B, A) bool marks real agents (padding slots are ignored). goals: for goal variants,
+        (B, A, 2) one goal per agent, or (B, A, K, 2) one per sample. The draws are fixed by `seed`.
+        """
+        past, mask = np.asarray(past, dtype=np.float64), np.asarray(agent_mask, dtype=bool)
+        if past.ndim != 4 or past.shape[2:] != (self.obs_len, 2) or mask.shape != past.shape[:2]:
+            raise UsageError(
+                f"expected past (B, A, {self.obs_len}, 2) and agent_mask (B, A), got {past.shape} and {mask.shape}"
+            )
+        batch = padded_batch(past, mask, self.pred_len, self.trained.forces_config, self.trained.dt_s).to(self.device)
+        if self.variant not in GOAL_VARIANTS:
+            predictor = self.predictor(k, seed)
+            goals_k = predictor.goals(batch, np.zeros(mask.shape, np.int64))
+        elif goals is None:
+            raise UsageError(f"the {self.variant} variant steers toward goals: pass goals (B, A, 2) or (B, A, K, 2)")
+        else:
+            goals_t = torch.as_tensor(np.asarray(goals), dtype=torch.float32, device=self.device)
+            per_sample = goals_t.dim() == 4
+            predictor = self.predictor(k, seed, "fair" if per_sample else "oracle")
+            goals_k = goals_t.transpose(1, 2) if per_sample else goals_t[:, None].expand(-1, k, -1, -1)
+        with torch.no_grad():
+            return predictor(batch, goals_k).cpu().numpy()
+
+
+def load(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> Model:
+    """A trained CVAE from its artifact id (`cvae/3f9c2a`) or folder, on `device` (cpu, cuda)."""
+    artifact = find_artifact(ref, "cvae", root)
+    check_schema(artifact, "cvae", artifact.manifest.schema_version, "fftool train-cvae")
+    chosen = _device(device)
+    trained = load_model(artifact, chosen)
+    store = ArtifactStore(artifact.path.parent.parent)
+    windows = [a for a in store.chain(artifact) if isinstance(a, Artifact) and a.kind == "windows"]
+    stats = windows[0].manifest.stats if windows else {"obs_len": 8, "pred_len": PRED_LEN}
+    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen)
+
+
+@dataclass(frozen=True)
+class GoalSampler:
+    """A trained goal U-Net that draws K goals per observed path, without a scene map (its map channels are 0)."""
+
+    net: torch.nn.Module
+    config: object
+    in_channels: int
+
+    def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
+        """(M, K, 2) goals for observed paths past (M, T, 2)."""
+        cfg = self.config
+        channels = self.in_channels - past.shape[1] - int(cfg.cv_channel)  # type: ignore[attr-defined]
+        blank = SceneMaps(torch.zeros(1, channels, 1, 1), torch.zeros(1, 2), 1.0, ()).to(device)
+        obs = torch.as_tensor(past, dtype=torch.float32, device=device)
+        scene = torch.zeros(len(past), dtype=torch.long, device=device)
+        goals = goal_model.predict_goals(
+            self.net, obs, scene, blank, cfg, GoalsConfig(k=k), generator(seed, device), pred_len  # type: ignore[arg-type]
+        )
+        return goals.cpu().numpy()
+
+
+def load_goal_sampler(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> GoalSampler:
+    """A trained goal U-Net from its artifact id (`goal/3f9c2a`) or folder."""
+    artifact = find_artifact(ref, "goal", root)
+    net, cfg = goal_model.load_model(artifact, _device(device))
+    first = next(module for module in net.modules() if isinstance(module, torch.nn.Conv2d))
+    return GoalSampler(net, cfg, first.in_channels)
+
+
+def predict_tracks(
+    model: Model,
+    tracks: pd.DataFrame,
+    *,
+    source: Path = Path("<tracks>"),
+    at: str | list[float] = "last",
+    k: int = 20,
+    seed: int = 0,
+    goals: Mapping[object, tuple[float, float]] | None = None,
+    goal_sampler: GoalSampler | None = None,
+    max_gap_s: float = 1.0,
+) -> tuple[pd.DataFrame, list[str]]:
+    """K futures for every agent with all observed steps at the prediction time(s), and the warnings.
+
+    tracks: rows (time_s, agent, x, y) as `dataset.trackfiles.read_tracks` gives. at: "last" (the file's
+    last time), "all" (every time an agent has a full history) or times in seconds. goals: one (x, y) per
+    agent id, or goal_sampler: K goals per agent from a goal U-Net (goal variants need one of them).
+    Returns one row per (time, agent, sample, step): time_s, agent, sample, step, x, y, goal_x, goal_y.
+    """
+    steps = to_steps(source, tracks, model.step_s, max_gap_s)
+    found = observed_windows(source, steps, model.obs_len, prediction_steps(steps, at))
+    scenes = scene_set(
+        found.xy, found.window, found.agent, model.pred_len, model.trained.forces_config, model.trained.dt_s
+    )
+    labels = steps.labels[found.agent]
+    predictor = model.predictor(k, seed)
+    goals_of = predictor.goals
+    if model.variant in GOAL_VARIANTS:
+        if goal_sampler is not None:
+            sampled = goal_sampler.sample(found.xy, k, seed, model.pred_len, model.device)
+            predictor = model.predictor(k, seed, "fair", sampled)
+            goals_of = predictor.goals
+        elif goals is not None:
+            missing = [label for label in dict.fromkeys(labels) if label not in goals]
+            if missing:
+                raise FftoolError(f"no goal given for agent(s) {', '.join(map(str, missing[:5]))}")
+            given = torch.as_tensor(np.array([goals[label] for label in labels], dtype=np.float64))
+
+            def goals_of(batch: object, positions: np.ndarray) -> torch.Tensor:
+                chosen = given[np.where(positions >= 0, positions, 0)].to(torch.float32).to(model.device)
+                return chosen[:, None].expand(-1, k, -1, -1)
+        else:
+            raise UsageError(f"the {model.variant} variant steers toward goals: give goals or a goal U-Net")
+    plan = plan_batches(scenes, predictor.cfg)
+    parts: dict[str, list[np.ndarray]] = {"row": [], "goal": [], "pred": []}
+    for batch, goals_k, futures in sample_batches(predictor, scenes, plan, goals_of, model.device):
+        mask = batch.agent_mask.cpu().numpy()
+        parts["row"].append(batch.row.cpu().numpy()[mask])
+        parts["goal"].append(goals_k.transpose(1, 2).cpu().numpy()[mask])  # (m, K, 2)
+        parts["pred"].append(futures.transpose(1, 2).cpu().numpy()[mask])  # (m, K, T, 2)
+    order = np.argsort(np.concatenate(parts["row"]))
+    goal, pred = np.concatenate(parts["goal"])[order], np.concatenate(parts["pred"])[order]
+    return _table(steps.time_of(found.t0_step[found.window]), labels, goal, pred), steps.warnings
+
+
+def _table(t0_s: np.ndarray, labels: np.ndarray, goal: np.ndarray, pred: np.ndarray) -> pd.DataFrame:
+    """Long format: one row per (agent-window, sample, future step)."""
+    M, K, T, _ = pred.shape
+    per_row = lambda a: np.repeat(a, K * T)  # noqa: E731
+    return pd.DataFrame(
+        {
+            "time_s": per_row(t0_s),
+            "agent": per_row(labels),
+            "sample": np.tile(np.repeat(np.arange(K), T), M),
+            "step": np.tile(np.arange(1, T + 1), M * K),
+            "x": pred[..., 0].reshape(-1),
+            "y": pred[..., 1].reshape(-1),
+            "goal_x": np.repeat(goal[..., 0].reshape(-1), T),
+            "goal_y": np.repeat(goal[..., 1].reshape(-1), T),
+        }
+    )

@@ -1,0 +1,187 @@
+"""`fftool predict` and the Python API: the same futures as `evaluate` for the same windows, seed and model
+(real zara1), one-line errors for bad files, and never overwriting a user's file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from fftool import pipeline
+from fftool.api import load, predict_tracks
+from fftool.artifacts.schema import PREDICTIONS_FILE
+from fftool.artifacts.store import ArtifactStore
+from fftool.cli import app
+from fftool.config import load_config, predictor_config
+from fftool.dataset.trackfiles import read_tracks
+from fftool.errors import RawDataError
+from fftool.learning.batches import load_agent_windows
+
+from .conftest import REAL_RAW
+
+TINY = [
+    "cvae.d_model=16", "cvae.n_heads=2", "cvae.d_ff=32", "cvae.n_layers=1", "cvae.z_dim=4", "cvae.epochs=1",
+    "cvae.train_k=2", "cvae.max_train_windows=64", "cvae.val_max_windows=4", "cvae.output='cv_residual'",
+]  # fmt: skip
+
+
+def _train(raw: Path, root: Path, variant: str, protocol: str = "paper") -> dict:
+    cfg = load_config(None, [f"data.raw_dir={str(raw)!r}", *TINY, f"evaluate.protocol={protocol!r}"])
+    return pipeline.run(predictor_config(cfg, variant), ArtifactStore(root), ["evaluate"], benchmark="zara1")
+
+
+def _observed_file(built: dict, path: Path) -> tuple[Path, np.ndarray]:
+    """The zara1 test part's observed steps as a user file: one track per agent-window (id = window, ped),
+    so the agents with 8 observed steps at each time are exactly that window's; returns the true end points."""
+    data = load_agent_windows(built["windows"], "zara1", "test")
+    frames = (data.first_step[:, None] + np.arange(8)) * 10
+    agent = data.window_id * 100_000 + data.ped_id
+    obs = data.xy[:, :8]
+    table = {"frame": frames.reshape(-1), "agent_id": np.repeat(agent, 8), "x": obs[..., 0].reshape(-1)}
+    pd.DataFrame(table | {"y": obs[..., 1].reshape(-1)}).to_csv(path, index=False)
+    return path, np.column_stack([agent, data.xy[:, -1]])
+
+
+def _evaluated(built: dict) -> np.ndarray:
+    frame = pd.read_parquet(built["evaluate"].file(PREDICTIONS_FILE))
+    return np.stack(frame["pred"].to_numpy()).reshape(len(frame), 20, 12, 2)
+
+
+def _predicted(out: Path, n: int) -> np.ndarray:
+    frame = pd.read_parquet(out).sort_values(["time_s", "agent", "sample", "step"], kind="stable")
+    return frame[["x", "y"]].to_numpy().reshape(n, 20, 12, 2)
+
+
+@pytest.mark.data
+def test_predict_on_real_zara1_gives_evaluates_numbers(tmp_path: Path) -> None:
+    if not REAL_RAW.is_dir():
+        pytest.skip("real data absent")
+    root = tmp_path / "artifacts"
+    built = _train(REAL_RAW.resolve(), root, "baseline")
+    tracks, ends = _observed_file(built, tmp_path / "zara1_test.csv")
+    out = tmp_path / "futures.parquet"
+    args = ["predict", str(tracks), "--model", built["cvae"].id, "--root", str(root), "--at", "all", "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    expected = _evaluated(built)
+    assert np.array_equal(_predicted(out, len(expected)), expected)  # the same numbers, not close ones
+
+    # A goal variant with the true end points as given goals = evaluate's oracle protocol.
+    built = _train(REAL_RAW.resolve(), root, "dr", "oracle")
+    goals = tmp_path / "goals.csv"
+    pd.DataFrame({"agent_id": ends[:, 0].astype(np.int64), "x": ends[:, 1], "y": ends[:, 2]}).to_csv(goals, index=False)
+    out = tmp_path / "dr.parquet"
+    args = ["predict", str(tracks), "--model", built["cvae"].id, "--root", str(root), "--at", "all"]
+    result = CliRunner().invoke(app, [*args, "--goals", str(goals), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    expected = _evaluated(built)
+    assert np.array_equal(_predicted(out, len(expected)), expected)
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    from .conftest import make_raw_tree
+
+    base = tmp_path_factory.mktemp("tiny")
+    raw = make_raw_tree(base / "raw")
+    cfg = load_config(None, [f"data.raw_dir={str(raw)!r}", *TINY])
+    built = pipeline.run(cfg, ArtifactStore(base / "artifacts"), ["cvae"], benchmark="zara1")
+    return base / "artifacts", built["cvae"].id
+
+
+def _walkers(path: Path, n_steps: int = 10, **columns: object) -> Path:
+    step = np.arange(n_steps)
+    rows = {"time": np.r_[step, step] * 0.4, "agent_id": np.repeat([1, 2], n_steps)}
+    rows |= {"x": np.r_[step * 0.5, step * 0.4], "y": np.r_[step * 0.0, 2.0 + step * 0.1]}
+    pd.DataFrame(rows | columns).to_csv(path, index=False)
+    return path
+
+
+def test_predict_writes_k_futures_per_agent_and_the_api_agrees(tiny_model: tuple[Path, str], tmp_path: Path) -> None:
+    root, model_id = tiny_model
+    tracks, out = _walkers(tmp_path / "t.csv"), tmp_path / "f.parquet"
+    args = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--k", "5", "--out", str(out)]
+    result = CliRunner().invoke(app, [*args, "--plot", str(tmp_path / "f.png")])
+    assert result.exit_code == 0, result.output
+    table = pd.read_parquet(out)
+    assert set(table.columns) == {"time_s", "agent", "sample", "step", "x", "y", "goal_x", "goal_y"}
+    assert len(table) == 2 * 5 * 12 and (tmp_path / "f.png").is_file()
+    assert CliRunner().invoke(app, args).exit_code == 0  # its own previous output may be replaced
+    model = load(model_id, root=root)
+    past = read_tracks(tracks)[["x", "y"]].to_numpy().reshape(1, 2, 10, 2)[:, :, -8:]
+    futures = model.predict(past, np.ones((1, 2), bool), k=5)
+    assert futures.shape == (1, 5, 2, 12, 2)
+    same, _ = predict_tracks(model, read_tracks(tracks), k=5)
+    assert np.array_equal(same[["x", "y"]].to_numpy().reshape(2, 5, 12, 2), futures[0].transpose(1, 0, 2, 3))
+
+
+def test_tracks_at_another_rate_are_resampled_with_a_warning(tiny_model: tuple[Path, str], tmp_path: Path) -> None:
+    root, model_id = tiny_model
+    step = np.arange(40)
+    tracks = tmp_path / "fast.csv"
+    pd.DataFrame({"t": step * 0.1, "id": 7, "x": step * 0.1, "y": 0.0}).to_csv(tracks, index=False)  # 10 Hz
+    args = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--out", str(tmp_path / "o.parquet")]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "linear interpolation" in result.output
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"drop": "y"}, "no y column"),
+        ({"x": ["1.0"] * 19 + ["abc"]}, "line 21, column 'x': expected a finite number, found 'abc'"),
+        ({"steps": 5}, "no agent has 8 observed steps"),
+        ({"cm_after": 15}, "positions must all be in one unit"),
+        ({"gap": True}, "has no position from time"),
+    ],
+)
+def test_bad_files_are_one_line_errors(
+    tiny_model: tuple[Path, str], tmp_path: Path, change: dict, message: str
+) -> None:
+    root, model_id = tiny_model
+    tracks = _walkers(tmp_path / "bad.csv", n_steps=change.get("steps", 10))
+    frame = pd.read_csv(tracks, dtype=str)
+    if "drop" in change:
+        frame = frame.drop(columns=change["drop"])
+    if "x" in change:
+        frame["x"] = change["x"]
+    if "cm_after" in change:  # the second half of a track in centimetres
+        rows = frame.index[change["cm_after"] :]
+        frame.loc[rows, "x"] = (frame.loc[rows, "x"].astype(float) * 100).astype(str)
+    if "gap" in change:
+        frame = frame.drop(index=[3, 4, 5])
+    frame.to_csv(tracks, index=False)
+    out = tmp_path / "o.parquet"
+    result = CliRunner().invoke(
+        app, ["predict", str(tracks), "--model", model_id, "--root", str(root), "--out", str(out)]
+    )
+    assert result.exit_code == 1, result.output
+    assert result.output.startswith("Error: ") and result.output.count("\n") == 1, result.output
+    assert str(tracks) in result.output and message in result.output
+    assert not out.exists()
+
+
+def test_a_users_file_is_never_overwritten(tiny_model: tuple[Path, str], tmp_path: Path) -> None:
+    root, model_id = tiny_model
+    tracks = _walkers(tmp_path / "t.csv")
+    mine = tmp_path / "mine.parquet"
+    pd.DataFrame({"a": [1]}).to_parquet(mine)
+    before = mine.read_bytes()
+    result = CliRunner().invoke(
+        app, ["predict", str(tracks), "--model", model_id, "--root", str(root), "--out", str(mine)]
+    )
+    assert result.exit_code == 2 and "refusing to overwrite" in result.output
+    assert mine.read_bytes() == before
+
+
+def test_units_and_frame_columns(tmp_path: Path) -> None:
+    path = tmp_path / "mm.csv"
+    pd.DataFrame({"frame_id": [0, 10, 20], "ped_id": [3, 3, 3], "x": [0, 400, 800], "y": [0, 0, 0]}).to_csv(path)
+    tracks = read_tracks(path, units="mm", frame_step_s=0.4)
+    assert np.allclose(tracks["x"], [0, 0.4, 0.8]) and np.allclose(tracks["time_s"], [0, 0.4, 0.8])
+    with pytest.raises(RawDataError, match="unknown unit 'ft'"):
+        read_tracks(path, units="ft")
