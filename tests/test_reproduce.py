@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from fftool.artifacts.store import ArtifactStore
@@ -64,7 +65,7 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert "run summary" in first.output and "tracks, windows, forces" in first.output
     report = root / "reports" / "tiny"
     assert (report / "report.md").is_file() and "Table IV" in (report / "report.md").read_text()
-    for stem in ("table2_ade_fde", "table3_fde", "table4_collisions"):
+    for stem in ("table2_ade_fde", "table3_fde", "table4_collisions", "table5_collision_metrics", "table6_paired"):
         assert {p.suffix for p in report.glob(f"{stem}.*")} == {".md", ".csv", ".tex"}
 
     manifests, folders = {}, {}
@@ -74,10 +75,17 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert set(manifests) == {"cv", "baseline", "dr"}
     assert manifests["dr"]["protocol"] == "paper" and manifests["baseline"]["protocol"] == "none"
     table3 = pd.read_csv(report / "table3_fde.csv").set_index("method")
-    assert table3.loc["ForceFormer-Dr", "zara1"] == round(manifests["dr"]["min_fde"], 2)
+    assert table3.loc["ForceFormer-Dr", "zara1"] == pytest.approx(manifests["dr"]["min_fde"], rel=1e-5)
+    assert table3.loc["ForceFormer-Dr", "zara1 low"] <= table3.loc["ForceFormer-Dr", "zara1"]
+    assert table3.loc["ForceFormer-Dr", "zara1"] <= table3.loc["ForceFormer-Dr", "zara1 high"]
     assert table3.loc["ForceFormer-Dr", "zara1 (paper)"] == 0.20
     table4 = pd.read_csv(report / "table4_collisions.csv").set_index("method")
     assert table4.loc["AgentFormer", "zara1"] == manifests["baseline"]["nc"]["best_ade"]["ordered"]
+    table5 = pd.read_csv(report / "table5_collision_metrics.csv").set_index("method")
+    assert table5.loc["ForceFormer-Dr", "zara1 COL"] == pytest.approx(manifests["dr"]["col"], rel=1e-5)
+    assert table5.loc["ForceFormer-Dr", "zara1 Col-II"] == manifests["dr"]["col_gt"]
+    results = pd.read_csv(report / "results.csv")
+    assert len(results) == 3 and results["grid_seed"].isna().all()  # no --seeds: each section's own seed
     folder = next(f for f in (root / "evaluate").iterdir() if f.name.startswith(folders["dr"]))
     predictions = pd.read_parquet(folder / "predictions.parquet")
     assert len(predictions) == manifests["dr"]["agent_windows"] and len(predictions["pred"].iloc[0]) == 20 * 12 * 2
@@ -102,6 +110,8 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
         str(wider["collisions"].sum() // 2),
         str(wider["joint_collisions"].sum()),
         str(wider["joint_collisions"].sum() // 2),
+        f"{np.mean(wider['col']):.2f}",  # COL and Col-II do not depend on γ
+        str(wider["col_gt"].sum()),
     ]
     assert stored_row[1] == "0.1" and stored_row[4] == str(manifests["dr"]["nc"]["best_ade"]["ordered"])
     not_evaluate = CliRunner().invoke(app, ["rescore", "windows", "--threshold", "0.2", "--root", str(root)])
@@ -115,6 +125,23 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert fair.exit_code == 0, fair.output
     assert fair.output.count("building") == 1  # only dr reads goals; baseline and cv are shared
     assert "goal protocol 'fair'" in (tmp_path / "fair" / "report.md").read_text()
+
+    seeds_out = tmp_path / "seeds"
+    seeded = CliRunner().invoke(app, ["ablate", "--seeds", "0,1", *common, "--out", str(seeds_out)])
+    assert seeded.exit_code == 0, seeded.output
+    assert "seed 1" in seeded.output and seeded.output.count("nothing (all reused)") == 3  # seed 0 is cached
+    per_seed = pd.read_csv(seeds_out / "results.csv")
+    assert sorted(per_seed["grid_seed"]) == [0, 0, 0, 1, 1, 1]
+    assert set(per_seed.loc[per_seed["grid_seed"] == 0, "artifact"]) == {f"evaluate/{f}" for f in folders.values()}
+    table3 = pd.read_csv(seeds_out / "table3_fde.csv").set_index("method")
+    values = [float(v) for v in table3.loc["ForceFormer-Dr", "zara1 per seed"].split(";")]
+    assert values == pytest.approx(per_seed.query("variant == 'dr'").sort_values("grid_seed")["min_fde"].tolist())
+    assert table3.loc["ForceFormer-Dr", "zara1"] == pytest.approx(np.mean(values))
+    assert (
+        " ±" in (seeds_out / "table3_fde.md").read_text() and "grid seeds 0, 1" in (seeds_out / "report.md").read_text()
+    )
+    bad = CliRunner().invoke(app, ["ablate", "--seeds", "0,x", *common, "--out", str(seeds_out)])
+    assert bad.exit_code == 2 and "--seeds" in bad.output
 
     figures = tmp_path / "figures"
     drawn = CliRunner().invoke(

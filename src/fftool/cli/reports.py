@@ -48,10 +48,22 @@ def reproduce(
     set_: SetOption = None,
     root: RootOption = None,
     out: OutOption = None,
+    seeds: Annotated[
+        str | None,
+        typer.Option(
+            "--seeds",
+            help="Comma-separated grid seeds (report.seeds): every cell is trained and evaluated once per seed "
+            "(each sets the goal, goals, cvae and evaluate seeds; seed 0 reuses the default cells); tables show "
+            "mean ±sd over seeds, results.csv every seed.",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
-    """The whole DAG from raw files to Tables II-IV (md, csv, tex) and figures; built stages are reused.
+    """The whole DAG from raw files to Tables II-VI (md, csv, tex) and figures; built stages are reused.
 
-    Trains and evaluates whatever is missing for the baseline, the chosen variants and constant velocity.
+    Trains and evaluates whatever is missing for the baseline, the chosen variants and constant velocity, then
+    scores every evaluation from its saved predictions: minADE, minFDE, NC, COL and Col-II, each with a
+    bootstrap interval over test windows, and each variant's paired difference from the baseline.
     """
     import time
 
@@ -66,7 +78,8 @@ def reproduce(
         raise UsageError(f"two pipelines given ({pipeline_file} and -c {config}); give one")
     profile_file = pipeline_file or config
     started = time.perf_counter()
-    cfg = load_config(profile_file, set_, {"evaluate.protocol": protocol} if protocol else None)
+    values = ({"evaluate.protocol": protocol} if protocol else {}) | ({"report.seeds": _seeds(seeds)} if seeds else {})
+    cfg = load_config(profile_file, set_, values)
     store = open_store(root)
     profile = profile_file.stem if profile_file else "defaults"
     reports_dir = store.root / cfg.report.out_dir  # an absolute out_dir replaces the root
@@ -77,19 +90,34 @@ def reproduce(
         pipeline.Runtime(device=device),
         benchmarks.split(",") if benchmarks else list(cfg.report.benchmarks),
         [v for v in (variants.split(",") if variants is not None else cfg.report.variants) if v],
-        on_cell=lambda b, p: log(f"[bold]{b} / {p}[/]"),
+        on_cell=lambda b, p, s: log(f"[bold]{b} / {p}{'' if s is None else f' / seed {s}'}[/]"),
     )
     command = "fftool " + " ".join(sys.argv[1:])
     draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
-    report = ablation.write_report(cfg, results, out_dir, profile, command, time.perf_counter() - started, draw)
+    seconds = time.perf_counter() - started
+    report = ablation.write_report(cfg, store, results, out_dir, profile, command, seconds, draw)
     for table in [*report_tables(report.parent), run_summary(results)]:
         out_console.print(table)
     log(f"report: {report} ({(time.perf_counter() - started) / 60:.1f} min)")
 
 
+def _seeds(text: str) -> list[int]:
+    """--seeds 0,1,2 -> [0, 1, 2]; anything but comma-separated non-negative integers is a usage error."""
+    from fftool.errors import UsageError
+
+    try:
+        seeds = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise UsageError(f"--seeds {text}: expected comma-separated integers, e.g. --seeds 0,1,2") from None
+    if len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise UsageError(f"--seeds {text}: expected distinct non-negative integers, e.g. --seeds 0,1,2")
+    return seeds
+
+
 _REPRODUCE_EXAMPLES = (
     "Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # ~11 min on a 2-core CPU\n\n"
     "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # 1 h 21 min on one CPU thread\n\n"
+    "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --seeds 0,1,2   # 3 seeds, mean ±sd\n\n"
     "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU\n\n"
     "  fftool ablate -c pipelines/quick.toml --variants dr --protocol fair --out fair/"
 )
@@ -97,7 +125,7 @@ app.command(epilog=_REPRODUCE_EXAMPLES)(boundary(reproduce))
 app.command(
     "ablate",
     epilog=_REPRODUCE_EXAMPLES,
-    help="The same command as `fftool reproduce` (its older name): Tables II-IV from the whole DAG.",
+    help="The same command as `fftool reproduce` (its older name): Tables II-VI from the whole DAG.",
 )(boundary(reproduce))
 
 
@@ -182,7 +210,10 @@ def rescore(
     ],
     root: RootOption = None,
 ) -> None:
-    """Re-score an evaluation's saved predictions at another collision threshold, without sampling again."""
+    """Re-score an evaluation's saved predictions at another collision threshold, without sampling again.
+
+    Also prints COL and Col-II, so evaluations built before those metrics existed gain them.
+    """
     from fftool.reporting.summaries import rescore_table
     from fftool.stages.evaluate import rescore_artifact
     from fftool.ui import out_console

@@ -1,9 +1,11 @@
-"""The ablation: every (benchmark, predictor) evaluation built through the DAG, then the paper's tables.
+"""The ablation: every (seed, benchmark, predictor) evaluation built through the DAG, then the paper's tables.
 
-`run` asks the pipeline for one `evaluate` artifact per cell, so whatever is missing upstream (tracks,
-forces, the goal U-Net, goal samples, the CVAE of that variant) is built first and whatever exists is
-reused. `write_report` renders Tables II-IV and replaces the report folder atomically, and only a
-folder fftool may replace (`check_report_folder`): new, empty, or a previous report (its marker file).
+`run` asks the pipeline for one `evaluate` artifact per cell (a grid seed is one more parameter, set by
+`config.seeded_config`, so each seed's models are cached like any other): whatever is missing upstream
+(tracks, forces, the goal U-Net, goal samples, the CVAE of that variant) is built first and whatever exists
+is reused. `write_report` scores every evaluation with its intervals (reporting/scores.py), renders Tables
+II-VI and replaces the report folder atomically, and only a folder fftool may replace
+(`check_report_folder`): new, empty, or a previous report (its marker file).
 """
 
 from __future__ import annotations
@@ -16,14 +18,16 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import torch
 
 from fftool import __version__, pipeline
 from fftool.artifacts.store import ArtifactStore
-from fftool.config import PipelineConfig, predictor_config
+from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
 from fftool.errors import UsageError
 from fftool.paper import PREDICTORS
-from fftool.reporting import tables
+from fftool.reporting import scores, tables
+from fftool.stages.evaluate import METRIC_DEFINITIONS
 
 
 def predictors(cfg: PipelineConfig, variants: Iterable[str]) -> list[str]:
@@ -32,21 +36,26 @@ def predictors(cfg: PipelineConfig, variants: Iterable[str]) -> list[str]:
     return [p for p in PREDICTORS if p in chosen]
 
 
+def grid_seeds(cfg: PipelineConfig) -> list[int | None]:
+    """The grid's seeds (report.seeds), or [None]: one run with each section's own seed."""
+    return list(cfg.report.seeds) or [None]
+
+
 def run(
     cfg: PipelineConfig,
     store: ArtifactStore,
     runtime: pipeline.Runtime,
     benchmarks: Iterable[str],
     variants: Iterable[str],
-    on_cell: Callable[[str, str], None] | None = None,
+    on_cell: Callable[[str, str, int | None], None] | None = None,
 ) -> list[dict[str, Any]]:
-    """Build (or reuse) the evaluation of each benchmark × predictor; their manifest stats with ids."""
+    """Build (or reuse) the evaluation of each seed × benchmark × predictor; their manifest stats with ids."""
     results = []
-    for benchmark in benchmarks:
+    for seed, benchmark in ((s, b) for s in grid_seeds(cfg) for b in benchmarks):
         for predictor in predictors(cfg, variants):
             if on_cell:
-                on_cell(benchmark, predictor)
-            cell = predictor_config(cfg, predictor)
+                on_cell(benchmark, predictor, seed)
+            cell = predictor_config(cfg if seed is None else seeded_config(cfg, seed), predictor)
             missing = [r.stage.name for r in pipeline.resolve(cell, ["evaluate"], benchmark)
                        if store.lookup(r.stage.name, r.fingerprint) is None]  # fmt: skip
             started = time.perf_counter()
@@ -56,6 +65,7 @@ def run(
                 artifact.manifest.stats
                 | {
                     "artifact": artifact.id,
+                    "grid_seed": seed,
                     "windows": built["windows"].id,
                     "built_now": missing,  # stages this run had to build for the cell
                     "cell_seconds": time.perf_counter() - started,
@@ -65,9 +75,11 @@ def run(
 
 
 def figures(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
-    """A report's figures: the density curves of every predictor, the qualitative panels of all but cv."""
+    """A report's figures: the density curves of every predictor, the qualitative panels of all but cv; of the
+    first grid seed only."""
     from fftool.reporting import plots
 
+    results = [r for r in results if r["grid_seed"] == results[0]["grid_seed"]]
     windows_ids = {r["windows"] for r in results}
     if len(windows_ids) != 1:
         raise ValueError(f"the evaluations come from {len(windows_ids)} different windows artifacts")
@@ -85,10 +97,18 @@ def caption(cfg: PipelineConfig, profile: str) -> str:
     return (
         f"Ours: profile {profile}; goal protocol {ev.protocol!r} for goal, dr, re (baseline and cv read no goal); "
         f"K = {ev.k} samples; test part of each leave-one-out benchmark; NC at gamma = {ev.collision_threshold_m} m "
-        f"over {report.collision_pairs} pairs of {report.collision_sample.replace('_', '-')} samples; seeds: "
-        f"cvae {cfg.cvae.seed}, goal {cfg.goal.seed}, goals {cfg.goals.seed}, evaluate {ev.seed}. "
+        f"over {report.collision_pairs} pairs of {report.collision_sample.replace('_', '-')} samples; {_seeds(cfg)}; "
+        f"[low, high]: {report.confidence:.0%} percentile interval of a bootstrap over test windows "
+        f"({report.bootstrap_resamples} resamples, seed {report.bootstrap_seed}). "
         "Paper: ForceFormer Tables II-IV (its goal protocol = ours 'paper')."
     )
+
+
+def _seeds(cfg: PipelineConfig) -> str:
+    if cfg.report.seeds:
+        seeds = ", ".join(map(str, cfg.report.seeds))
+        return f"mean ±sd over grid seeds {seeds} (each sets the {', '.join(SEEDED_SECTIONS)} seeds)"
+    return f"seeds: cvae {cfg.cvae.seed}, goal {cfg.goal.seed}, goals {cfg.goals.seed}, evaluate {cfg.evaluate.seed}"
 
 
 REPORT_MARKER = ".fftool-report"  # marks a folder as a report fftool wrote and may replace
@@ -127,6 +147,7 @@ def _check_replaceable(target: Path, flag: str) -> None:
 
 def write_report(
     cfg: PipelineConfig,
+    store: ArtifactStore,
     results: list[dict[str, Any]],
     out_dir: Path,
     profile: str,
@@ -134,19 +155,27 @@ def write_report(
     seconds: float,
     draw: Callable[[Path], list[Path]] | None = None,
 ) -> Path:
-    """Tables II-IV (md, csv, tex), results.csv and report.md; the old report is replaced only when complete.
+    """Tables II-VI (md, csv, tex), results.csv (one row per evaluation, its own intervals) and report.md; the
+    old report is replaced only when complete. Every metric is recomputed from the saved predictions.
 
     `out_dir` must have passed `check_report_folder`; it is checked again here, just before the swap.
     """
-    frame = tables.results_frame(results, cfg.report.collision_pairs, cfg.report.collision_sample)
-    text = caption(cfg, profile)
-    built = [tables.table2(frame, text), tables.table3(frame, text), tables.table4(frame, text)]
+    scored, rows = scores.score(store, results, cfg.report, cfg.evaluate.collision_threshold_m)
+    grid, text = tables.Grid(scored, cfg.report.confidence), caption(cfg, profile)
+    counts = 1 if len(grid_seeds(cfg)) > 1 else 0  # a mean over seeds of counts has a decimal
+    built = [
+        tables.table2(grid, text),
+        tables.table3(grid, text),
+        tables.table4(grid, text, counts),
+        tables.table5(grid, text, counts),
+        tables.table6(grid, text),
+    ]
     partial = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
     shutil.rmtree(partial, ignore_errors=True)
     try:
-        tables.write(built, partial, _preamble(command, seconds, results))
+        tables.write(built, partial, _preamble(command, seconds, results), _definitions())
         (partial / REPORT_MARKER).write_text(f"written by fftool {__version__}; the next report replaces this folder\n")
-        frame.assign(artifact=[r["artifact"] for r in results]).to_csv(partial / "results.csv", index=False)
+        pd.DataFrame(rows).to_csv(partial / "results.csv", index=False)
         if draw:
             with (partial / "report.md").open("a") as report:
                 report.writelines(f"\n![{path.stem}]({path.name})\n" for path in draw(partial))
@@ -174,7 +203,17 @@ def _preamble(command: str, seconds: float, results: list[dict[str, Any]]) -> st
             "(artifacts reused from the store cost nothing)",
             f"- machine: {platform.platform()}, {os.cpu_count()} CPU cores, torch {torch.__version__} with "
             f"{torch.get_num_threads()} threads, device {', '.join(devices)}",
-            "- evaluations: " + ", ".join(f"{r['benchmark']}/{r['variant']} = {r['artifact']}" for r in results),
+            "- evaluations: " + ", ".join(f"{_cell_name(r)} = {r['artifact']}" for r in results),
             "",
         ]
     )
+
+
+def _cell_name(result: dict[str, Any]) -> str:
+    seed = "" if result["grid_seed"] is None else f"/seed {result['grid_seed']}"
+    return f"{result['benchmark']}/{result['variant']}{seed}"
+
+
+def _definitions() -> str:
+    """The metric definitions, as every new evaluation manifest records them (older ones lack COL and Col-II)."""
+    return "\n### Metric definitions\n\n" + "".join(f"- `{k}`: {v}\n" for k, v in METRIC_DEFINITIONS.items())

@@ -204,31 +204,38 @@ def rescore_table(evaluation: Artifact, rescored: dict) -> Table:
     stored = evaluation.manifest.stats
     title = f"evaluation {evaluation.id} re-scored: {stored['benchmark']}, {stored['variant']}, K = {stored['k']}"
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, caption_justify="left")
-    for name in ("", "γ (m)", "minADE (m)", "minFDE (m)", "NC", "NC unordered", "NC joint", "NC joint unordered"):
+    names = ("", "γ (m)", "minADE (m)", "minFDE (m)", "NC", "NC unordered", "NC joint", "NC joint unordered")
+    for name in (*names, "COL (%)", "Col-II"):
         table.add_column(name, justify="left" if not name else "right", no_wrap=True)
     for label, s in (("stored", stored), ("re-scored", rescored)):
         nc = [s["nc"][sample][pairs] for sample in ("best_ade", "joint") for pairs in ("ordered", "unordered")]
+        col = [f"{s['col']:.2f}", str(s["col_gt"])] if "col" in s else ["-", "-"]  # evaluations built before COL
         table.add_row(
-            label, f"{s['collision_threshold_m']:g}", f"{s['min_ade']:.3f}", f"{s['min_fde']:.3f}", *map(str, nc)
+            label, f"{s['collision_threshold_m']:g}", f"{s['min_ade']:.3f}", f"{s['min_fde']:.3f}", *map(str, nc), *col
         )
     table.caption = (
         f"{stored['part']} part, {stored['agent_windows']:,} agent-windows, from the saved predictions (no sampling); "
-        "NC: pairs-steps closer than γ, ordered unless noted, best-ADE samples (paper) or one joint sample per window"
+        "NC: pairs-steps closer than γ, ordered unless noted, best-ADE samples (paper) or one joint sample per window; "
+        "COL and Col-II use their own 0.2 m (docs/metrics.md)"
     )
     return table
 
 
 def report_tables(report_dir: Path) -> list[Table]:
-    """The report's Tables II-IV (read back from their CSV files) as rich tables."""
+    """The report's Tables II-VI (read back from their CSV files: estimates and the paper's) as rich tables;
+    the intervals and per-seed values are in the files."""
     import pandas as pd
 
     tables = []
     for stem, title in (
         ("table2_ade_fde", "Table II: minADE/minFDE (m), ours and (paper)"),
         ("table3_fde", "Table III: minFDE (m) per variant"),
-        ("table4_collisions", "Table IV: number of collisions"),
+        ("table4_collisions", "Table IV: number of collisions NC"),
+        ("table5_collision_metrics", "Table V: COL (%) and Col-II"),
+        ("table6_paired", "Table VI: variant minus AgentFormer, paired"),
     ):
         frame = pd.read_csv(report_dir / f"{stem}.csv", dtype=str).fillna("")
+        frame = frame[[c for c in frame.columns if not c.endswith((" sd", " low", " high", " per seed"))]]
         table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
         for i, column in enumerate(frame.columns):
             table.add_column(column.replace(" (paper)", "\n(paper)"), justify="left" if i == 0 else "right",

@@ -1,120 +1,192 @@
-"""The paper's Tables II-IV from evaluation results, with the published numbers beside ours.
+"""The paper's Tables II-IV from evaluation scores, with the published numbers beside ours, and two more:
+the field's other collision metrics (V) and paired differences against the baseline (VI).
 
-Input: one row per (benchmark, predictor) evaluation (an `evaluate` manifest's stats). Output: pandas
-frames written as Markdown, CSV and LaTeX, each with a caption naming protocol, K, γ, pair order,
-profile and seeds. "Average" is the mean of the evaluated scenes (Social-GAN convention), "Sum" their
-sum; both are left empty unless all five scenes were evaluated, so a partial run never looks complete.
+Input: `scores.Score`s per (benchmark, predictor, metric). Each table has a display frame (Markdown and
+LaTeX: one compact cell per number, `estimate ±sd [low, high]`, the ± only with several seeds) and a data
+frame (CSV: estimate, sd, interval bounds and the per-seed values in columns of their own). "Average" is the
+mean of the evaluated scenes (Social-GAN convention), "Sum" their sum; both are left empty unless all five
+scenes were evaluated, so a partial run never looks complete.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Final
 
 import pandas as pd
 
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.paper import PAPER_NAMES, PREDICTORS, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
+from fftool.reporting.scores import Score, combine
+
+Scores = Mapping[tuple[str, str, str], Score]
 
 
 @dataclass(frozen=True)
 class Table:
     name: str  # file stem
     title: str
-    frame: pd.DataFrame  # first column: method
+    frame: pd.DataFrame  # display cells (md, tex); first column: method
     caption: str
+    data: pd.DataFrame  # numbers (csv): estimate, sd, low, high, per seed
 
 
-def results_frame(results: Iterable[Mapping[str, Any]], pairs: str, sample: str) -> pd.DataFrame:
-    """Long format: benchmark, predictor, protocol, min_ade, min_fde, nc, agent_windows, seconds."""
-    rows = [
-        {
-            "benchmark": r["benchmark"],
-            "predictor": r["variant"],
-            "protocol": r["protocol"],
-            "k": r["k"],
-            "min_ade": r["min_ade"],
-            "min_fde": r["min_fde"],
-            "nc": r["nc"][sample][pairs],
-            "agent_windows": r["agent_windows"],
-            "seconds": r["seconds"],
-        }
-        for r in results
-    ]
-    frame = pd.DataFrame(rows)
-    order = {name: i for i, name in enumerate(PREDICTORS)}
-    return frame.sort_values(["predictor", "benchmark"], key=lambda c: c.map(order) if c.name == "predictor" else c)
+@dataclass(frozen=True)
+class Grid:
+    """What the tables cover: scores, the scenes and predictors present, and the interval level."""
+
+    scores: Scores
+    level: float
+
+    @property
+    def scenes(self) -> list[str]:
+        present = {b for b, _, _ in self.scores}
+        return [b for b in BENCHMARKS if b in present]
+
+    @property
+    def predictors(self) -> list[str]:
+        present = {p for _, p, _ in self.scores}
+        return [p for p in PREDICTORS if p in present]
+
+    @property
+    def complete(self) -> bool:
+        return self.scenes == list(BENCHMARKS)
+
+    def columns(self, total: str) -> list[str]:
+        """The scenes, then the total column (Average or Sum)."""
+        return [*self.scenes, total]
+
+    def get(self, scene: str, predictor: str, metric: str, total: str) -> Score | None:
+        """One scene's score, or the total over all five scenes (None when a scene is missing)."""
+        if scene != total:
+            return self.scores[(scene, predictor, metric)]
+        if not self.complete:
+            return None
+        scenes = (self.scores[(s, predictor, metric)] for s in self.scenes)
+        return combine(scenes, "mean" if total == "average" else "sum")
 
 
-def _scenes(results: pd.DataFrame) -> list[str]:
-    present = set(results["benchmark"])
-    return [b for b in BENCHMARKS if b in present]
-
-
-def _complete(scenes: list[str]) -> bool:
-    return scenes == list(BENCHMARKS)
-
-
-def _fmt(value: float | None, digits: int = 2) -> str:
+def _fmt(value: float | None, digits: int) -> str:
     return "" if value is None or pd.isna(value) else f"{value:.{digits}f}"
 
 
-def table2(results: pd.DataFrame, caption: str) -> Table:
+def cell(score: Score | None, digits: int, level: float, signed: bool = False) -> str:
+    """The compact form: `0.216 ±0.004 [0.205, 0.228]` (± over seeds only when there are several)."""
+    if score is None:
+        return ""
+    sign = "+" if signed else ""
+    low, high = score.interval(level)
+    spread = "" if math.isnan(score.sd) else f" ±{score.sd:.{digits}f}"
+    return f"{score.estimate:{sign}.{digits}f}{spread} [{low:{sign}.{digits}f}, {high:{sign}.{digits}f}]"
+
+
+def numbers(prefix: str, score: Score | None, level: float) -> dict[str, float | str]:
+    """The CSV columns of one number: estimate, sd over seeds, interval bounds, the per-seed values."""
+    if score is None:
+        return {prefix: "", f"{prefix} sd": "", f"{prefix} low": "", f"{prefix} high": "", f"{prefix} per seed": ""}
+    low, high = score.interval(level)
+    per_seed = ";".join(f"{v:.6g}" for v in score.per_seed)
+    return {prefix: score.estimate, f"{prefix} sd": score.sd, f"{prefix} low": low, f"{prefix} high": high,
+            f"{prefix} per seed": per_seed}  # fmt: skip
+
+
+def table2(grid: Grid, caption: str) -> Table:
     """minADE/minFDE per scene and their average, ours and the paper's side by side."""
-    scenes = _scenes(results)
-    rows = []
-    for predictor, group in results.groupby("predictor", sort=False):
-        by = group.set_index("benchmark")
+    shown, data = [], []
+    for predictor in grid.predictors:
         row: dict[str, str] = {"method": PAPER_NAMES[predictor]}
-        for scene in [*scenes, "average"]:
-            if scene == "average":
-                ade, fde = (by["min_ade"].mean(), by["min_fde"].mean()) if _complete(scenes) else (None, None)
-            else:
-                ade, fde = by.loc[scene, "min_ade"], by.loc[scene, "min_fde"]
-            row[scene] = f"{_fmt(ade)}/{_fmt(fde)}" if ade is not None else ""
+        numeric: dict[str, float | str] = {"method": PAPER_NAMES[predictor]}
+        for scene in grid.columns("average"):
+            ade, fde = (grid.get(scene, predictor, m, "average") for m in ("min_ade", "min_fde"))
+            row[scene] = f"{cell(ade, 3, grid.level)} / {cell(fde, 3, grid.level)}" if ade is not None else ""
+            numeric |= numbers(f"{scene} minADE", ade, grid.level) | numbers(f"{scene} minFDE", fde, grid.level)
             paper = TABLE2_ADE_FDE.get(predictor, {}).get(scene)
-            row[f"{scene} (paper)"] = f"{paper[0]:.2f}/{paper[1]:.2f}" if paper else ""
-        rows.append(row)
-    return Table("table2_ade_fde", "Table II: minADE / minFDE (m)", pd.DataFrame(rows), caption)
+            row[f"{scene} (paper)"] = numeric[f"{scene} (paper)"] = f"{paper[0]:.2f}/{paper[1]:.2f}" if paper else ""
+        shown.append(row)
+        data.append(numeric)
+    frames = pd.DataFrame(shown), pd.DataFrame(data)
+    return Table("table2_ade_fde", "Table II: minADE / minFDE (m)", frames[0], caption, frames[1])
 
 
 def _scalar_table(
-    results: pd.DataFrame,
-    column: str,
-    total: tuple[str, Callable[[pd.Series], float]],
-    fmt: Callable[[float | None], str],
-    published: Mapping[str, Mapping[str, float]],
-) -> pd.DataFrame:
-    """One number per scene and a total over all five scenes, ours and the paper's side by side."""
-    scenes = _scenes(results)
-    total_name, aggregate = total
-    rows = []
-    for predictor, group in results.groupby("predictor", sort=False):
-        by = group.set_index("benchmark")[column]
-        row = {"method": PAPER_NAMES[predictor]}
-        for scene in [*scenes, total_name]:
-            if scene == total_name:
-                row[scene] = fmt(aggregate(by) if _complete(scenes) else None)
-            else:
-                row[scene] = fmt(by[scene])
-            row[f"{scene} (paper)"] = fmt(published.get(predictor, {}).get(scene))
-        rows.append(row)
-    return pd.DataFrame(rows)
+    grid: Grid,
+    metrics: Mapping[str, tuple[str, int]],  # metric -> (column label, digits)
+    total: str,
+    published: Mapping[str, Mapping[str, Mapping[str, float]]],  # metric -> the paper's numbers
+    predictors: list[str] | None = None,
+    score_of: Callable[[str, str, str], Score | None] | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One cell per scene and metric, a total over all five scenes, and the paper's numbers beside ours."""
+    shown, data = [], []
+    get = score_of or (lambda scene, predictor, metric: grid.get(scene, predictor, metric, total))
+    for predictor in predictors or grid.predictors:
+        row: dict[str, str] = {"method": PAPER_NAMES[predictor]}
+        numeric: dict[str, float | str] = {"method": PAPER_NAMES[predictor]}
+        for scene in grid.columns(total):
+            for metric, (label, digits) in metrics.items():
+                name = f"{scene} {label}".rstrip()
+                score = get(scene, predictor, metric)
+                row[name] = cell(score, digits, grid.level, signed=score_of is not None)
+                numeric |= numbers(name, score, grid.level)
+                if metric in published:
+                    paper = _fmt(published[metric].get(predictor, {}).get(scene), digits)
+                    row[f"{name} (paper)"] = numeric[f"{name} (paper)"] = paper
+        shown.append(row)
+        data.append(numeric)
+    return pd.DataFrame(shown), pd.DataFrame(data)
 
 
-def table3(results: pd.DataFrame, caption: str) -> Table:
+def table3(grid: Grid, caption: str) -> Table:
     """minFDE per variant (the ablation), ours and the paper's."""
-    frame = _scalar_table(results, "min_fde", ("average", pd.Series.mean), _fmt, TABLE3_FDE)
-    return Table("table3_fde", "Table III: minFDE (m) per variant", frame, caption)
+    frames = _scalar_table(grid, {"min_fde": ("", 3)}, "average", {"min_fde": TABLE3_FDE})
+    return Table("table3_fde", "Table III: minFDE (m) per variant", frames[0], caption, frames[1])
 
 
-def table4(results: pd.DataFrame, caption: str) -> Table:
-    """Collision counts per variant and their sum, ours and the paper's."""
-    count = lambda value: "" if value is None else str(int(value))  # noqa: E731
-    frame = _scalar_table(results, "nc", ("sum", pd.Series.sum), count, TABLE4_COLLISIONS)
-    return Table("table4_collisions", "Table IV: number of collisions", frame, caption)
+def table4(grid: Grid, caption: str, count_digits: int) -> Table:
+    """Collision counts NC per variant and their sum, ours and the paper's."""
+    frames = _scalar_table(grid, {"nc": ("", count_digits)}, "sum", {"nc": TABLE4_COLLISIONS})
+    return Table("table4_collisions", "Table IV: number of collisions NC", frames[0], caption, frames[1])
+
+
+def table5(grid: Grid, caption: str, count_digits: int) -> Table:
+    """The field's other collision metrics beside NC: COL (% of samples) and Col-II (agent-windows); no
+    published ForceFormer numbers exist for them. COL averages over scenes, Col-II sums like NC."""
+    metrics = {"col": ("COL", 2), "col_gt": ("Col-II", count_digits)}
+    shown, data = [], []
+    for metric, total in (("col", "average"), ("col_gt", "sum")):
+        frames = _scalar_table(grid, {metric: metrics[metric]}, total, {})
+        shown.append(frames[0].set_index("method"))
+        data.append(frames[1].set_index("method"))
+    frame, numbers_ = (pd.concat(parts, axis=1).reset_index() for parts in (shown, data))
+    title = "Table V: COL (% of the K samples, EigenTrajectory) and Col-II (agent-windows, Trajnet++)"
+    return Table("table5_collision_metrics", title, frame, caption, numbers_)
+
+
+PAIRED_METRICS: Final = {"min_ade": "minADE", "min_fde": "minFDE", "nc": "NC", "col": "COL", "col_gt": "Col-II"}
+
+
+def table6(grid: Grid, caption: str, reference: str = "baseline") -> Table:
+    """Each ForceFormer variant minus the reference on the same windows and seeds (paired), per metric: a
+    difference whose interval excludes 0 is one the test set supports."""
+    variants = [p for p in grid.predictors if p not in (reference, "cv")]
+    rows_shown, rows_data = [], []
+    for metric, label in PAIRED_METRICS.items():
+        total = "average" if metric in ("min_ade", "min_fde", "col") else "sum"
+
+        def difference(scene: str, predictor: str, _metric: str, _total: str = total) -> Score | None:
+            ours, theirs = grid.get(scene, predictor, _metric, _total), grid.get(scene, reference, _metric, _total)
+            return None if ours is None or theirs is None else ours - theirs
+
+        digits = 3 if metric in ("min_ade", "min_fde") else 2 if metric == "col" else 1
+        shown, data = _scalar_table(grid, {metric: ("", digits)}, total, {}, variants, difference)
+        for frame, into in ((shown, rows_shown), (data, rows_data)):
+            frame.insert(1, "metric", f"Δ{label}")
+            into.append(frame.rename(columns=lambda c, t=total: c.replace(t, "all scenes", 1)))  # average or sum
+    title = f"Table VI: paired differences, variant minus {PAPER_NAMES[reference]} (same windows, same seeds)"
+    return Table("table6_paired", title, pd.concat(rows_shown), caption, pd.concat(rows_data))
 
 
 def markdown(table: Table) -> str:
@@ -126,16 +198,19 @@ def markdown(table: Table) -> str:
 
 
 def latex(table: Table) -> str:
-    return table.frame.to_latex(index=False, caption=f"{table.title}. {table.caption}", label=table.name)
+    frame = table.frame.map(lambda text: str(text).replace("±", r"$\pm$").replace("Δ", r"$\Delta$"))
+    frame.columns = [c.replace("Δ", r"$\Delta$") for c in frame.columns]
+    caption = f"{table.title}. {table.caption}".replace("%", r"\%").replace("±", r"$\pm$").replace("Δ", r"$\Delta$")
+    return frame.to_latex(index=False, caption=caption, label=table.name)
 
 
-def write(tables: list[Table], out_dir: Path, preamble: str) -> Path:
-    """Each table as .md, .csv and .tex, and report.md with all of them; returns report.md's path."""
+def write(tables: list[Table], out_dir: Path, preamble: str, epilogue: str = "") -> Path:
+    """Each table as .md, .csv (its numbers) and .tex, and report.md with all of them; returns report.md's path."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for table in tables:
         (out_dir / f"{table.name}.md").write_text(markdown(table))
-        table.frame.to_csv(out_dir / f"{table.name}.csv", index=False)
+        table.data.to_csv(out_dir / f"{table.name}.csv", index=False)
         (out_dir / f"{table.name}.tex").write_text(latex(table))
     report = out_dir / "report.md"
-    report.write_text(preamble + "\n" + "\n".join(markdown(t) for t in tables))
+    report.write_text(preamble + "\n" + "\n".join(markdown(t) for t in tables) + epilogue)
     return report
