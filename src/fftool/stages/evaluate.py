@@ -252,9 +252,9 @@ def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: fl
     """An evaluate artifact's summary recomputed from its saved predictions with collision threshold
     `threshold_m` (command `fftool rescore`): no sampling, so only the NC counts can change; COL and Col-II
     are computed for evaluations built before they existed."""
+    columns = rescored_columns(store, evaluation, threshold_m)  # checks first that it is an evaluation
     stats = evaluation.manifest.stats
     cfg = EvaluateConfig(part=stats["part"], k=stats["k"], seed=stats["seed"], collision_threshold_m=threshold_m)
-    columns = rescored_columns(store, evaluation, threshold_m)
     return summary(columns, cfg, stats["benchmark"], stats["variant"], stats["protocol"])
 
 
