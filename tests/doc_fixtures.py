@@ -32,7 +32,12 @@ from tests.test_maps import make_scene
 from tests.test_reproduce import TINY_PIPELINE
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = ("README.md", "docs/tutorial.md", "docs/metrics.md")  # every command block in these runs or says why not
+DOCS = (
+    "README.md",
+    "docs/tutorial.md",
+    "docs/metrics.md",
+    "docs/api.md",
+)  # every command block in these runs or says why not
 FILES_ENV = "FFTOOL_DOC_TEST_FILES"  # os.pathsep-separated Markdown files to test instead (the broken-doc test)
 RUN_KEY = "__doc_run__"  # where a document's namespace keeps its DocRun
 BLOCK_TIMEOUT_S = 280  # below pytest-timeout's 300 s, so a hung command fails with its output
@@ -87,6 +92,7 @@ def make_checkout(base: Path) -> Path:
                                      quick profile's name, reading the two folders above by the same
                                      relative paths as the real pipelines/quick.toml
     base/checkout/data/eth_ucy/raw   a copy of the synthetic tree: what `fftool fetch-data` would place there
+    base/checkout/tracks.csv, goals.csv  a user's own tracks and goals, for `fftool predict` (write_user_tracks)
     """
     shared = base / "shared" / "data" / "eth_ucy"
     make_raw_tree(shared / "raw")
@@ -97,7 +103,20 @@ def make_checkout(base: Path) -> Path:
         TINY_PIPELINE.format(raw="../shared/data/eth_ucy/raw", scenes="../shared/data/eth_ucy/scenes")
     )
     shutil.copytree(shared / "raw", checkout / "data" / "eth_ucy" / "raw")
+    write_user_tracks(checkout)
     return checkout
+
+
+def write_user_tracks(folder: Path) -> None:
+    """tracks.csv (two walkers, 10 steps of 0.4 s) and goals.csv (one goal each): a user's files for `predict`."""
+    rows = ["time,agent_id,x,y"] + [
+        f"{t * 0.4:.1f},{a},{x:.2f},{y:.2f}"
+        for a, (x0, y0, vx) in enumerate([(0.0, 0.0, 0.5), (6.0, 1.0, -0.45)], 1)
+        for t in range(10)
+        for x, y in [(x0 + vx * t, y0)]
+    ]
+    (folder / "tracks.csv").write_text("\n".join(rows) + "\n")
+    (folder / "goals.csv").write_text("agent_id,x,y\n1,11.0,0.0\n2,-4.0,1.0\n")
 
 
 def shell_env(state_file: Path) -> dict[str, str]:

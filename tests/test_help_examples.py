@@ -54,6 +54,7 @@ ORDER = [
     "fftool sample-goals",
     "fftool train-cvae",
     "fftool evaluate",
+    "fftool predict",  # reads the dr model train-cvae built, and the checkout's tracks.csv and goals.csv
     "fftool reproduce",
     "fftool ablate",
     "fftool plot",

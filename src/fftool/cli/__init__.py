@@ -2,8 +2,7 @@
 
 `fftool.cli.app` holds the Typer app, the one error boundary and the shared options; each module adds
 its commands: `data` (fetch-data), `stages` (one per pipeline stage), `predict` (your own tracks), `reports`
-(reproduce/ablate, plot,
-rescore) and `artifacts` (list, show, verify). The science lives in the packages below.
+(reproduce/ablate, plot, rescore) and `artifacts` (list, show, verify). The science lives in the packages below.
 """
 
 from importlib import import_module

@@ -21,9 +21,9 @@ def _times(value: str) -> str | list[float]:
 
 @app.command(
     epilog="Examples:\n\n"
-    "  fftool predict tracks.csv --model cvae/3f9c2a --out futures.parquet --plot futures.png\n\n"
-    "  fftool predict tracks.csv --model cvae/3f9c2a --at all --time-col frame --time-step 0.04 "
-    "--out all.parquet   # every time, frame ids 0.04 s apart"
+    "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --out futures.parquet --plot futures.png\n\n"
+    "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --at all --out all.parquet"
+    "   # every time with 8 observed steps"
 )
 @boundary
 def predict(
