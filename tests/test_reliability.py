@@ -272,7 +272,7 @@ def _forces_scaled_train(w: World, mp: pytest.MonkeyPatch) -> Act:
     forces = w.artifact("forces")
     values = np.load(forces / "f_dr.npy")
     np.save(forces / "f_dr.npy", values * 1000)  # still a valid .npy file; only its hash tells
-    args = ["train-cvae", *w.common(), *DEVICE, "--set", "cvae.seed=11"]
+    args = ["train-cvae", *w.common(), *DEVICE, "--variant", "dr", "--set", "cvae.seed=11"]  # dr reads f_dr
     return Act(args, {"id": f"forces/{forces.name}"})
 
 

@@ -67,7 +67,8 @@ class Resolved:
 
     stage: Stage
     params: dict[str, Any]
-    inputs: dict[str, str]  # upstream stage -> fingerprint, raw file -> sha256
+    inputs: dict[str, str]  # what the fingerprint hashes: upstream stage (or view of it) -> fp, raw file -> sha256
+    sources: dict[str, str]  # the upstream artifacts it is built from: stage -> full fingerprint
     fingerprint: str
 
 
@@ -80,9 +81,24 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
             if benchmark not in BENCHMARKS:
                 raise FftoolError(f"stage {stage.name!r} needs a benchmark, one of {', '.join(BENCHMARKS)}")
             params["benchmark"] = benchmark
-        inputs = {name: resolved[name].fingerprint for name in stage.inputs_for(cfg)} | stage.external_inputs(cfg)
-        resolved[stage.name] = Resolved(stage, params, inputs, fingerprint(stage.name, stage.version, params, inputs))
+        upstream = [resolved[name] for name in stage.inputs_for(cfg)]
+        inputs = dict(_input_key(up, stage.reads(cfg).get(up.stage.name)) for up in upstream)
+        inputs |= stage.external_inputs(cfg)
+        sources = {up.stage.name: up.fingerprint for up in upstream}
+        fp = fingerprint(stage.name, stage.version, params, inputs)
+        resolved[stage.name] = Resolved(stage, params, inputs, sources, fp)
     return list(resolved.values())
+
+
+def _input_key(upstream: Resolved, parts: tuple[str, ...] | None) -> tuple[str, str]:
+    """How a consumer's fingerprint names an upstream artifact: by its fingerprint, or, when the consumer
+    reads only some parts of it (`Stage.reads`), by a fingerprint of the parameters those parts depend on
+    (`Stage.view`), so `forces.fov_deg` reaches the models that read the repulsive force and no other."""
+    stage = upstream.stage
+    if parts is None or stage.view is None:
+        return stage.name, upstream.fingerprint
+    view = fingerprint(stage.name, stage.version, stage.view(upstream.params, parts), upstream.inputs)
+    return f"{stage.name}[{','.join(sorted(parts))}]", view
 
 
 def run(
@@ -142,7 +158,9 @@ def _build(
     store.check_inputs(inputs, {name: STAGES[name].command for name in inputs})
     checked_s = time.perf_counter() - started
     with (
-        store.build(stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs) as built_ctx,
+        store.build(
+            stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs, sources=item.sources
+        ) as built_ctx,
         progress() as bar,
     ):
         task = bar.add_task(stage.description(cfg, benchmark), total=None)

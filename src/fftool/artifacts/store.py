@@ -61,12 +61,19 @@ class Manifest:
     fftool_version: str = __version__
     git_commit: str | None = None
     created_at: str = ""
+    # The artifacts it was built from (kind -> fingerprint); `inputs` may name a view of one instead
+    # (e.g. `forces[f_dr,speed0]`). Empty in manifests written before views existed: see `built_from`.
+    sources: dict[str, str] = field(default_factory=dict)
     # Where it was built (not fingerprinted): trained numbers depend on the torch version, thread count
     # and CPU, so the same inputs and seed give the same numbers only where these match.
     environment: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+    def built_from(self) -> dict[str, str]:
+        """The upstream artifacts (kind -> fingerprint) it was built from; raw files are not listed."""
+        return self.sources or {kind: fp for kind, fp in self.inputs.items() if _KIND.fullmatch(kind)}
 
     @classmethod
     def from_json(cls, text: str) -> Manifest:
@@ -324,9 +331,7 @@ class ArtifactStore:
     def chain(self, artifact: Artifact) -> list[Artifact | str]:
         """The artifact and every artifact it was built from, depth first; a missing input is a message."""
         found: list[Artifact | str] = [artifact]
-        for kind, fp in artifact.manifest.inputs.items():
-            if not _KIND.fullmatch(kind):  # a raw file's content hash, not an artifact
-                continue
+        for kind, fp in artifact.manifest.built_from().items():
             upstream = self.lookup(kind, fp)
             if upstream is None:
                 found.append(f"{kind}/{fp[:_FP_DIR_LEN]} (an input of {artifact.id}) is no longer in the store")
@@ -373,6 +378,7 @@ class ArtifactStore:
         schema_version: int,
         params: Mapping[str, Any],
         inputs: Mapping[str, str],
+        sources: Mapping[str, str] | None = None,
     ) -> Iterator[BuildContext]:
         """Build an artifact atomically: write into `ctx.dir`, set `ctx.stats`; rename on success.
 
@@ -382,7 +388,7 @@ class ArtifactStore:
         """
         try:
             with self.lock(kind, fp):
-                yield from self._build_locked(kind, fp, schema_version, params, inputs)
+                yield from self._build_locked(kind, fp, schema_version, params, inputs, sources or {})
         finally:
             if self._fresh and not self.path_for(kind, fp).exists():  # a failed first build leaves no trace
                 lock_path = self._lock_path(kind, fp)
@@ -391,7 +397,13 @@ class ArtifactStore:
                     _remove_empty(folder)
 
     def _build_locked(
-        self, kind: str, fp: str, schema_version: int, params: Mapping[str, Any], inputs: Mapping[str, str]
+        self,
+        kind: str,
+        fp: str,
+        schema_version: int,
+        params: Mapping[str, Any],
+        inputs: Mapping[str, str],
+        sources: Mapping[str, str],
     ) -> Iterator[BuildContext]:
         self.clean_incomplete()
         tmp = self.root / _INCOMPLETE / f"{kind}-{fp[:_FP_DIR_LEN]}-{os.getpid()}"
@@ -406,6 +418,7 @@ class ArtifactStore:
                 fingerprint=fp,
                 params=dict(params),
                 inputs=dict(inputs),
+                sources=dict(sources),
                 files=_hash_files(tmp),
                 stats=ctx.stats,
                 git_commit=_git_commit(),

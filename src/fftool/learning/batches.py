@@ -216,11 +216,37 @@ class SceneSet:
         )
 
 
-def load_scene_set(windows: Artifact, forces: Artifact, benchmark: str, part: str, stride: int = 1) -> SceneSet:
-    """A benchmark part's windows with the forces of each agent-window (rows align by construction)."""
+def _not_read(name: str, agents_steps: tuple[int, ...]) -> np.ndarray:
+    """A forces array that was not read: zeros (group ids -1, alone) as a view of one scalar, no memory."""
+    shapes = {"f_dr": (*agents_steps, 2), "f_re": (*agents_steps, 2), "velocity": (*agents_steps, 2),
+              "goal": (agents_steps[0], 2), "speed0": agents_steps, "group_id": agents_steps[:1]}  # fmt: skip
+    fill = np.int32(-1) if name == "group_id" else np.float32(0)
+    return np.broadcast_to(fill, shapes[name])
+
+
+def load_scene_set(
+    windows: Artifact,
+    forces: Artifact | None,
+    benchmark: str,
+    part: str,
+    stride: int = 1,
+    reads: tuple[str, ...] | None = None,
+) -> SceneSet:
+    """A benchmark part's windows with the forces arrays named in `reads` (default: all) of each agent-window.
+
+    The arrays not read are zeros (group ids -1, no group) that cost no memory: a consumer can only use
+    what it declared, which is what its fingerprint hashes (`Stage.reads`). Rows align by construction.
+    """
     from fftool.artifacts.schema import FORCES_ARRAYS
 
     data = load_agent_windows(windows, benchmark, part, stride)
-    arrays = {name: np.load(forces.file(file), mmap_mode="r")[data.row] for name, file in FORCES_ARRAYS.items()}
+    reads = tuple(FORCES_ARRAYS) if reads is None else reads
+    if reads and forces is None:
+        raise ValueError(f"reading forces arrays {reads} needs the forces artifact")
+    arrays = {
+        name: np.load(forces.file(file), mmap_mode="r")[data.row] if forces is not None and name in reads else
+        _not_read(name, data.xy.shape[:2])
+        for name, file in FORCES_ARRAYS.items()
+    }  # fmt: skip
     change = np.flatnonzero(np.diff(data.window_id)) + 1
     return SceneSet(data, arrays, np.r_[0, change, len(data)])

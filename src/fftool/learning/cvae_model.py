@@ -45,8 +45,8 @@ def sample(
     model: ForceFormer,
     prepared: Prepared,
     cfg: CVAEConfig,
-    forces_cfg: ForcesConfig,
-    dt_s: float,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
     k: int,
     generator_: torch.Generator | None = None,
     context: tuple[torch.Tensor, torch.Tensor] | None = None,
@@ -69,8 +69,8 @@ def sample(
 class Trained(NamedTuple):
     model: ForceFormer  # in eval mode
     config: CVAEConfig
-    forces_config: ForcesConfig  # the force constants it decodes with
-    dt_s: float  # the time step its forces were computed with
+    forces_config: ForcesConfig | None  # the force constants it decodes with (None: a variant without forces)
+    dt_s: float | None  # the time step its forces were computed with
 
 
 def load_model(cvae: Artifact, device: torch.device) -> Trained:
@@ -79,4 +79,10 @@ def load_model(cvae: Artifact, device: torch.device) -> Trained:
         cfg = CVAEConfig.model_validate(saved["config"])
         model = build_model(cfg).to(device)
         model.load_state_dict(saved["state_dict"])
-        return Trained(model.eval(), cfg, ForcesConfig.model_validate(saved["forces_config"]), float(saved["dt_s"]))
+        forces = saved["forces_config"]
+        return Trained(
+            model.eval(),
+            cfg,
+            None if forces is None else ForcesConfig.model_validate(forces),
+            None if saved["dt_s"] is None else float(saved["dt_s"]),
+        )

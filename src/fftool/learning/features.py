@@ -24,6 +24,18 @@ from fftool.models.forceformer import StepFeatures
 from fftool.science.social_forces import desired_direction, driving_force, group_pairs, social_forces
 
 FEATURE_DIMS: Final = {"baseline": 4, "goal": 8, "dr": 6, "re": 10}
+# The arrays of the forces artifact each variant reads (fftool.stages.forces.ARRAY_PARAMS: the force
+# constants each depends on). Training reads the stored forces as inputs; sampling recomputes the past
+# forces toward the sampled goal, so it reads only the decoder's desired speed and (re) the groups.
+TRAINING_READS: Final = {"baseline": (), "goal": (), "dr": ("f_dr", "speed0"), "re": ("f_re", "group_id", "speed0")}
+SAMPLING_READS: Final = {"baseline": (), "goal": (), "dr": ("speed0",), "re": ("group_id", "speed0")}
+
+
+def uses_forces(variant: str) -> bool:
+    """Whether a variant's inputs include a social force (dr, re): only those need force constants and a time step."""
+    return bool(TRAINING_READS[variant])
+
+
 DECODER_DIMS: Final = {"baseline": 2, "goal": 6, "dr": 4, "re": 8}
 
 
@@ -111,12 +123,15 @@ def prepare(
 
 
 def decoder_features(
-    variant: str, prepared: Prepared, forces_cfg: ForcesConfig, dt_s: float, repeat: int = 1
+    variant: str, prepared: Prepared, forces_cfg: ForcesConfig | None, dt_s: float | None, repeat: int = 1
 ) -> StepFeatures:
     """The decoder's per-step input from positions decoded so far; forces recomputed from predictions.
 
+    forces_cfg, dt_s: the force constants and time step (None for variants without forces).
     repeat: how many samples each window is repeated for (batch dim B·repeat, repeat_interleave order).
     """
+    if uses_forces(variant) and (forces_cfg is None or dt_s is None):
+        raise ValueError(f"the {variant} variant decodes with social forces: it needs their constants and time step")
     rep = (lambda x: x.repeat_interleave(repeat, 0)) if repeat > 1 else (lambda x: x)
     goal, speed0, groups, mask = (
         rep(prepared.goal),

@@ -49,7 +49,7 @@ def artifacts_table(artifacts: list[Artifact]) -> Table:
         manifest = artifact.manifest
         size = sum(f["bytes"] for f in manifest.files.values())
         inputs = (
-            ", ".join(f"{name}/{fp[:8]}" for name, fp in manifest.inputs.items() if not name.startswith("raw/"))
+            ", ".join(f"{name}/{fp[:8]}" for name, fp in manifest.built_from().items())
             or f"{sum(1 for name in manifest.inputs if name.startswith('raw/'))} raw files"
         )
         table.add_row(

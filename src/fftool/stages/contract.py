@@ -75,6 +75,11 @@ class Stage:
     needs: Callable[[PipelineConfig], tuple[str, ...]] | None = None
     # The command's options that select this artifact (e.g. ` --variant dr`), for error messages.
     command_args: Callable[[PipelineConfig], str] = field(default=lambda cfg: "")
+    # The parts it reads of upstream artifacts whose stage has a `view` (e.g. {"forces": ("f_dr",)}):
+    # its fingerprint then hashes only the upstream parameters those parts depend on.
+    reads: Callable[[PipelineConfig], Mapping[str, tuple[str, ...]]] = field(default=lambda cfg: {})
+    # For a producer: its parameters (from its resolved params) that the named parts of its artifact depend on.
+    view: Callable[[Mapping[str, Any], tuple[str, ...]], dict[str, Any]] | None = None
 
     def inputs_for(self, cfg: PipelineConfig | None) -> tuple[str, ...]:
         return self.inputs if self.needs is None or cfg is None else self.needs(cfg)

@@ -1,6 +1,7 @@
 """Train the AgentFormer CVAE with a ForceFormer input variant on one leave-one-out benchmark.
 
-Reads: windows and forces (training goals are the ground truth). Writes: `cvae/<fp>/model.pt` (best
+Reads: windows and, for the dr and re variants, the forces arrays they use (`features.TRAINING_READS`;
+training goals are the ground truth). Writes: `cvae/<fp>/model.pt` (best
 weights by validation minADE, the resolved config, everything needed to rebuild the model),
 `log.csv` and the same per-epoch curves as TensorBoard events in `tensorboard/` (written live to the
 scratch folder while training: `tensorboard --logdir <root>`). Run: `fftool train-cvae --benchmark zara1 --variant dr`.
@@ -27,7 +28,7 @@ from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig, PipelineConfig
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import autocast, build_model, sample
-from fftool.learning.features import Prepared, decoder_features, prepare
+from fftool.learning.features import TRAINING_READS, Prepared, decoder_features, prepare, uses_forces
 from fftool.learning.training import (
     epoch_seed,
     fit,
@@ -55,7 +56,12 @@ def epoch_plan(
 
 
 def training_loss(
-    model: ForceFormer, prepared: Prepared, cfg: CVAEConfig, forces_cfg: ForcesConfig, dt_s: float, gen: torch.Generator
+    model: ForceFormer,
+    prepared: Prepared,
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
+    gen: torch.Generator,
 ) -> LossParts:
     """AgentFormer's loss parts for one batch (posterior reconstruction, KL, best-of-train_k)."""
     with autocast(cfg, prepared.past.device):
@@ -103,8 +109,8 @@ def validate(
     scenes: SceneSet,
     windows: np.ndarray,
     cfg: CVAEConfig,
-    forces_cfg: ForcesConfig,
-    dt_s: float,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
     obs_len: int,
     device: torch.device,
 ) -> tuple[float, float]:
@@ -134,14 +140,14 @@ class _Trainer:
     throughput columns, and the validation minADE/minFDE whose minADE picks the best epoch."""
 
     cfg: CVAEConfig
-    forces_cfg: ForcesConfig
+    forces_cfg: ForcesConfig | None  # None for variants without forces (baseline, goal)
     model: ForceFormer
     optimizer: torch.optim.Optimizer
     train: SceneSet
     val: SceneSet
     val_subset: np.ndarray
     obs_len: int
-    dt_s: float
+    dt_s: float | None
     per_epoch: int  # training windows per epoch
     device: torch.device
     first_steps: list[int] = field(init=False)  # each epoch's first optimizer step; [-1]: the schedule's budget
@@ -197,36 +203,43 @@ class _Trainer:
 
 
 def _trainer(
-    cfg: CVAEConfig, forces_cfg: ForcesConfig, benchmark: str, windows: Artifact, forces: Artifact, device: torch.device
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig,
+    benchmark: str,
+    windows: Artifact,
+    forces: Artifact | None,
+    device: torch.device,
 ) -> _Trainer:
-    """The benchmark's scenes with their forces, and a fresh model seeded by the run's seed."""
-    train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride)
-    val = load_scene_set(windows, forces, benchmark, "val")
+    """The benchmark's scenes with the forces the variant reads, and a fresh model seeded by the run's seed."""
+    reads = TRAINING_READS[cfg.variant]
+    train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride, reads)
+    val = load_scene_set(windows, forces, benchmark, "val", reads=reads)
     val_subset = val_windows(val, cfg)
     torch.manual_seed(cfg.seed)
     model = build_model(cfg).to(device)
     return _Trainer(
         cfg=cfg,
-        forces_cfg=forces_cfg,
+        forces_cfg=forces_cfg if forces is not None else None,
         model=model,
         optimizer=make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay),
         train=train,
         val=val,
         val_subset=val_subset,
         obs_len=int(windows.manifest.stats["obs_len"]),
-        dt_s=float(forces.manifest.stats["dt_s"]),  # the time step the stored forces were computed with
+        dt_s=float(forces.manifest.stats["dt_s"]) if forces is not None else None,  # the forces' time step
         per_epoch=min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows,
         device=device,
     )
 
 
 def train(
-    cfg: CVAEConfig, forces_cfg: ForcesConfig, windows: Artifact, forces: Artifact, ctx: StageContext
+    cfg: CVAEConfig, forces_cfg: ForcesConfig, windows: Artifact, forces: Artifact | None, ctx: StageContext
 ) -> dict[str, Any]:
     """Train with validation every epoch; write the best model and the log; return the manifest stats.
 
     cfg: the `cvae` section (variant included); forces_cfg: the force constants used in the decoder;
-    windows, forces: input artifacts; ctx: the benchmark, build and scratch folders, device, callbacks.
+    windows, forces: input artifacts (no forces for the baseline and goal variants); ctx: the benchmark,
+    build and scratch folders, device, callbacks.
     """
     benchmark, device, out_dir = ctx.need_benchmark(), ctx.device(), ctx.out_dir
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
@@ -239,7 +252,7 @@ def train(
         {
             "state_dict": progress.best_state,
             "config": cfg.model_dump(mode="json"),
-            "forces_config": forces_cfg.model_dump(mode="json"),
+            "forces_config": None if trainer.forces_cfg is None else trainer.forces_cfg.model_dump(mode="json"),
             "benchmark": benchmark,
             "best_epoch": progress.best_epoch,
             "dt_s": trainer.dt_s,
@@ -265,7 +278,12 @@ def train(
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: train one benchmark's CVAE of the configured variant."""
-    return train(cfg.cvae, cfg.forces, inputs["windows"], inputs["forces"], ctx)
+    return train(cfg.cvae, cfg.forces, inputs["windows"], inputs.get("forces"), ctx)
+
+
+def reads(cfg: PipelineConfig) -> tuple[str, ...]:
+    """Upstream stages: the forces artifact only for the variants whose inputs include a force."""
+    return INPUTS if uses_forces(cfg.cvae.variant) else ("windows",)
 
 
 STAGE = Stage(
@@ -277,5 +295,7 @@ STAGE = Stage(
     build=build,
     description=lambda cfg, benchmark: f"train CVAE {cfg.cvae.variant} ({benchmark})",
     per_benchmark=True,
+    needs=reads,
+    reads=lambda cfg: {"forces": TRAINING_READS[cfg.cvae.variant]},
     command_args=lambda cfg: f" --variant {cfg.cvae.variant}",
 )

@@ -1,7 +1,8 @@
 """Evaluate a predictor on one benchmark's test part: K samples per valid agent-window, minADE/minFDE, NC.
 
-Reads: windows, forces (for group ids and the observed-step layout), and, for the CVAE predictor, the
-trained `cvae` artifact and, for goal variants under the paper or fair protocol, the sampled `goals`.
+Reads: windows and, for the CVAE predictor, the trained `cvae` artifact, the forces arrays its variant
+samples with (dr: desired speeds; re: and groups) and, for goal variants under the paper or fair
+protocol, the sampled `goals`.
 Writes: `evaluate/<fp>/predictions.parquet` (every sample of every agent-window, with its per-agent
 metrics, so tables can be recomputed without sampling again) and the summary in the manifest.
 Run: `fftool evaluate --benchmark zara1 --variant dr --protocol paper`.
@@ -31,6 +32,7 @@ from fftool.config import EvaluateConfig, PipelineConfig
 from fftool.errors import ArtifactMissing, FftoolError
 from fftool.learning.batches import AgentWindows, SceneSet, load_agent_windows, load_scene_set
 from fftool.learning.cvae_model import load_model
+from fftool.learning.features import SAMPLING_READS
 from fftool.learning.sampling import Predictor, plan_batches, sample_batches
 from fftool.science.metrics import agent_metrics, collision_count
 from fftool.stages.contract import Stage, StageContext
@@ -64,21 +66,29 @@ def reads_goal(cfg: PipelineConfig) -> bool:
     return cfg.evaluate.predictor == "cvae" and cfg.cvae.variant != "baseline"
 
 
+def forces_read(cfg: PipelineConfig) -> tuple[str, ...]:
+    """The forces arrays an evaluation reads: none for cv, the baseline and goal (`features.SAMPLING_READS`)."""
+    return SAMPLING_READS[cfg.cvae.variant] if cfg.evaluate.predictor == "cvae" else ()
+
+
 def reads(cfg: PipelineConfig) -> tuple[str, ...]:
     """Upstream stages of an evaluation: only what its predictor and protocol actually read."""
     if cfg.evaluate.predictor == "cv":
-        return ("windows", "forces")
-    if not reads_goal(cfg) or cfg.evaluate.protocol == "oracle":
-        return ("windows", "forces", "cvae")
-    return ("windows", "forces", "cvae", "goals")
+        return ("windows",)
+    forces = ("forces",) if forces_read(cfg) else ()
+    goals = ("goals",) if reads_goal(cfg) and cfg.evaluate.protocol != "oracle" else ()
+    return ("windows", *forces, "cvae", *goals)
 
 
 def section(cfg: PipelineConfig) -> EvaluateConfig:
-    """The evaluate parameters that matter: the goal protocol only for predictors that read a goal, so the
-    baseline and cv evaluations are shared by every protocol (fingerprinted with the default)."""
-    if reads_goal(cfg):
-        return cfg.evaluate
-    return cfg.evaluate.model_copy(update={"protocol": EvaluateConfig().protocol})
+    """The evaluate parameters that matter, the others fingerprinted at their defaults: the goal protocol
+    only for predictors that read a goal (so the baseline and cv evaluations are shared by every protocol),
+    the constant-velocity noise only for the cv predictor."""
+    default = EvaluateConfig()
+    unread = {} if reads_goal(cfg) else {"protocol": default.protocol}
+    if cfg.evaluate.predictor != "cv":
+        unread |= {"cv_angle_std_deg": default.cv_angle_std_deg, "cv_speed_std": default.cv_speed_std}
+    return cfg.evaluate.model_copy(update=unread)
 
 
 def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
@@ -124,7 +134,7 @@ def sample_and_score(
     cfg: EvaluateConfig,
     benchmark: str,
     windows: Artifact,
-    forces: Artifact,
+    forces: Artifact | None,
     cvae: Artifact | None,
     goals: Artifact | None,
     out_dir: Path,
@@ -134,7 +144,8 @@ def sample_and_score(
     """Sample, score and save every valid agent-window of the benchmark's evaluation part."""
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
-    scenes = load_scene_set(windows, forces, benchmark, cfg.part)
+    reads = SAMPLING_READS[cvae.manifest.params["variant"]] if cvae is not None else ()
+    scenes = load_scene_set(windows, forces, benchmark, cfg.part, reads=reads)
     # Count agent-windows, not windows: an empty part still has one (empty) window in scenes.window_start.
     if len(scenes.data) == 0:
         raise FftoolError(_no_agent_windows(benchmark, cfg.part, obs_len + pred_len))
@@ -262,7 +273,7 @@ def rescored_columns(store: ArtifactStore, evaluation: Artifact, threshold_m: fl
     """An evaluation's per-agent metric columns (METRIC_COLUMNS) recomputed from its saved predictions, NC at
     `threshold_m`, with each row's window_id: what `rescore` prints and what the report's intervals resample."""
     check_schema(evaluation, NAME, VERSION, "fftool evaluate")
-    windows = store.lookup("windows", evaluation.manifest.inputs["windows"])
+    windows = store.lookup("windows", evaluation.manifest.built_from()["windows"])
     if windows is None:
         raise ArtifactMissing(
             f"the windows artifact {evaluation.id} was built from is no longer under {store.root}; run `fftool ingest`"
@@ -278,7 +289,7 @@ def rescored_columns(store: ArtifactStore, evaluation: Artifact, threshold_m: fl
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: K futures per test agent-window of one benchmark, and their metrics."""
-    upstream = (inputs["windows"], inputs["forces"], inputs.get("cvae"), inputs.get("goals"))
+    upstream = (inputs["windows"], inputs.get("forces"), inputs.get("cvae"), inputs.get("goals"))
     args = (cfg.evaluate, ctx.need_benchmark(), *upstream, ctx.out_dir, ctx.device())
     return sample_and_score(*args, on_progress=ctx.on_progress)
 
@@ -293,6 +304,7 @@ STAGE = Stage(
     description=lambda cfg, benchmark: f"evaluate ({benchmark})",
     per_benchmark=True,
     needs=reads,
+    reads=lambda cfg: {"forces": forces_read(cfg)},
     command_args=lambda cfg: (
         (" --variant cv" if cfg.evaluate.predictor == "cv" else f" --variant {cfg.cvae.variant}")
         + (f" --protocol {cfg.evaluate.protocol}" if reads_goal(cfg) else "")

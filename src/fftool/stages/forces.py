@@ -38,8 +38,22 @@ from fftool.science.social_forces import group_ids, window_forces
 from fftool.stages.contract import Stage, StageContext
 
 NAME: Final = "forces"
-VERSION: Final = 2  # 2: the time step used is recorded in the stats (dt_s) for the model's decoder
+VERSION: Final = 3  # 2: the time step is recorded (dt_s); 3: windows centred on a valid agent
 INPUTS: Final = ("tracks", "windows")
+# The force constants (ForcesConfig fields) each array depends on, so a consumer that reads some arrays
+# is fingerprinted on these alone (`view`): F_dr does not change with the field of view, F_re does not
+# change with tau. tests/test_fingerprints.py checks every entry by perturbing each constant.
+_DESIRED_SPEED = frozenset({"desired_speed", "desired_speed_mps"})
+_GROUPS = frozenset({"dbscan_eps_m", "dbscan_min_samples", "group_min_steps", "neighbours"})
+ARRAY_PARAMS: Final[dict[str, frozenset[str]]] = {
+    "velocity": frozenset(),
+    "goal": frozenset(),
+    "speed0": _DESIRED_SPEED,
+    "f_dr": _DESIRED_SPEED | {"tau_s", "goal_min_distance_m"},
+    "group_id": _GROUPS,  # ids are window-local slots, and `neighbours` decides the slots
+    "f_re": _GROUPS
+    | {"goal_min_distance_m", "v0_m2_s2", "sigma_m", "ellipse_step_s", "fov_deg", "fov_out_of_view", "fov_reading"},
+}
 # Pairwise work per batch (windows × actors² × steps): bounds the pairwise tensors to ~8 MB each.
 _PAIR_BUDGET = 1_000_000
 # One recording's dense (pedestrian, step) grid: 25 bytes a cell, so about 1.2 GB at most. The real
@@ -123,8 +137,11 @@ def _compute_sequence(
         present = seq.present[ped_index[:, :, None], chunk_steps[:, None, :]] & slot_mask[:, :, None]
         label = np.where(present[:, :, :obs_len], seq.label[ped_index[:, :, None], chunk_steps[:, None, :obs_len]], -1)
         is_valid = valid[chunk[:, None], ped_index] & slot_mask  # (B, N)
-        origin = position[:, :1, obs_len - 1 : obs_len]  # (B, 1, 1, 2): forces are translation-invariant,
-        tensors = {  # so centring each window keeps float32 precise to ~1e-6 m
+        # Forces are translation-invariant, so centring each window on its first valid agent's last observed
+        # position keeps float32 precise to ~1e-6 m (a valid agent: the same origin whoever else is present).
+        first_valid = is_valid.argmax(axis=1)
+        origin = position[np.arange(len(chunk)), first_valid, obs_len - 1][:, None, None]  # (B, 1, 1, 2)
+        tensors = {
             "position": torch.as_tensor(position - origin, dtype=torch.float32, device=device),
             "present": torch.as_tensor(present, device=device),
             "label": torch.as_tensor(label, device=device),
@@ -299,6 +316,12 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
     )
 
 
+def view(params: Mapping[str, Any], arrays: tuple[str, ...]) -> dict[str, Any]:
+    """The constants the given arrays depend on (`ARRAY_PARAMS`): what a consumer of only those hashes."""
+    used = frozenset().union(*(ARRAY_PARAMS[name] for name in arrays))
+    return {name: value for name, value in params.items() if name in used}
+
+
 STAGE = Stage(
     NAME,
     VERSION,
@@ -307,4 +330,5 @@ STAGE = Stage(
     section=lambda cfg: cfg.forces,
     build=build,
     description=lambda cfg, benchmark: "social forces",
+    view=view,
 )
