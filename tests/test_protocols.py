@@ -16,8 +16,8 @@ from fftool.config import CVAEConfig, EvaluateConfig, ForcesConfig, load_config
 from fftool.learning import cvae_model
 from fftool.learning.batches import SceneBatch, load_scene_set
 from fftool.learning.protocols import constant_velocity, protocol_goals, with_past_forces
-from fftool.learning.training import save_checkpoint
 from fftool.learning.sampling import Predictor
+from fftool.learning.training import save_checkpoint
 
 
 def test_paper_protocol_gives_every_sample_the_goal_closest_to_the_truth() -> None:

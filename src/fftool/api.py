@@ -20,7 +20,7 @@ import pandas as pd
 import torch
 
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema, default_root
-from fftool.config import EvaluateConfig, GoalsConfig
+from fftool.config import EvaluateConfig, GoalConfig, GoalsConfig
 from fftool.dataset.scenes import PRED_LEN
 from fftool.dataset.steps import observed_windows, prediction_steps, to_steps
 from fftool.errors import FftoolError, UsageError
@@ -120,18 +120,18 @@ class GoalSampler:
     """A trained goal U-Net that draws K goals per observed path, without a scene map (its map channels are 0)."""
 
     net: torch.nn.Module
-    config: object
+    config: GoalConfig
     in_channels: int
 
     def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
         """(M, K, 2) goals for observed paths past (M, T, 2)."""
         cfg = self.config
-        channels = self.in_channels - past.shape[1] - int(cfg.cv_channel)  # type: ignore[attr-defined]
+        channels = self.in_channels - past.shape[1] - int(cfg.cv_channel)
         blank = SceneMaps(torch.zeros(1, channels, 1, 1), torch.zeros(1, 2), 1.0, ()).to(device)
         obs = torch.as_tensor(past, dtype=torch.float32, device=device)
         scene = torch.zeros(len(past), dtype=torch.long, device=device)
         goals = goal_model.predict_goals(
-            self.net, obs, scene, blank, cfg, GoalsConfig(k=k), generator(seed, device), pred_len  # type: ignore[arg-type]
+            self.net, obs, scene, blank, cfg, GoalsConfig(k=k), generator(seed, device), pred_len
         )
         return goals.cpu().numpy()
 
