@@ -222,10 +222,7 @@ def rescore_table(evaluation: Artifact, rescored: dict) -> Table:
 
 
 def report_tables(report_dir: Path) -> list[Table]:
-    """The report's Tables II-VI (read back from their CSV files: estimates and the paper's) as rich tables;
-    the intervals and per-seed values are in the files."""
-    import pandas as pd
-
+    """The report's Tables II-VI (read back from their Markdown files, intervals included) as rich tables."""
     tables = []
     for stem, title in (
         ("table2_ade_fde", "Table II: minADE/minFDE (m), ours and (paper)"),
@@ -234,13 +231,13 @@ def report_tables(report_dir: Path) -> list[Table]:
         ("table5_collision_metrics", "Table V: COL (%) and Col-II"),
         ("table6_paired", "Table VI: variant minus AgentFormer, paired"),
     ):
-        frame = pd.read_csv(report_dir / f"{stem}.csv", dtype=str).fillna("")
-        frame = frame[[c for c in frame.columns if not c.endswith((" sd", " low", " high", " per seed"))]]
+        lines = [line for line in (report_dir / f"{stem}.md").read_text().splitlines() if line.startswith("|")]
+        header, *rows = ([cell.strip() for cell in line.strip("|").split("|")] for line in lines)
         table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
-        for i, column in enumerate(frame.columns):
+        for i, column in enumerate(header):
             table.add_column(column.replace(" (paper)", "\n(paper)"), justify="left" if i == 0 else "right",
                              style="dim" if "(paper)" in column else None)  # fmt: skip
-        for row in frame.itertuples(index=False):
+        for row in rows[1:]:  # rows[0] is the alignment rule
             table.add_row(*row)
         tables.append(table)
     return tables

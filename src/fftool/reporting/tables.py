@@ -20,7 +20,7 @@ import pandas as pd
 
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.paper import PAPER_NAMES, PREDICTORS, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
-from fftool.reporting.scores import Score, combine
+from fftool.reporting.scores import MEANS, Score, combine
 
 Scores = Mapping[tuple[str, str, str], Score]
 
@@ -132,7 +132,7 @@ def _scalar_table(
                 row[name] = cell(score, digits, grid.level, signed=score_of is not None)
                 numeric |= numbers(name, score, grid.level)
                 if metric in published:
-                    paper = _fmt(published[metric].get(predictor, {}).get(scene), digits)
+                    paper = _fmt(published[metric].get(predictor, {}).get(scene), 2 if metric in MEANS else 0)
                     row[f"{name} (paper)"] = numeric[f"{name} (paper)"] = paper
         shown.append(row)
         data.append(numeric)
@@ -170,7 +170,8 @@ PAIRED_METRICS: Final = {"min_ade": "minADE", "min_fde": "minFDE", "nc": "NC", "
 
 def table6(grid: Grid, caption: str, reference: str = "baseline") -> Table:
     """Each ForceFormer variant minus the reference on the same windows and seeds (paired), per metric: a
-    difference whose interval excludes 0 is one the test set supports."""
+    difference whose interval excludes 0 is one the test set supports. "all scenes" is the Average of the
+    mean metrics and the Sum of the counts, as in Tables II-V."""
     variants = [p for p in grid.predictors if p not in (reference, "cv")]
     rows_shown, rows_data = [], []
     for metric, label in PAIRED_METRICS.items():
