@@ -16,9 +16,11 @@ and is the only module that knows every stage. Stages never import each other.
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from fftool.artifacts.hashing import fingerprint
@@ -26,6 +28,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import PipelineConfig
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.errors import FftoolError
+from fftool.learning import distributed
 from fftool.stages import cvae, evaluate, forces, goal, goals, maps, tracks, windows
 from fftool.stages.contract import Stage, StageContext
 from fftool.ui import log, progress, warn
@@ -122,6 +125,9 @@ def run(
         if not upstream and stage.name not in targets:
             built[stage.name] = store.require(stage.name, fp, stage.version, stage.command_line(cfg, benchmark))
             continue
+        if stage.distributed and not distributed.leader():  # a torchrun rank > 0: rank 0 decides and installs
+            built[stage.name] = _follow(cfg, store, item, built, runtime or Runtime(), benchmark)
+            continue
         existing = None if stage.name in forced else _cached(store, stage, fp)
         if existing is not None and stage.name in targets:  # the caller reads it: check its bytes first
             store.check_inputs({stage.name: existing}, {stage.name: stage.command})
@@ -130,6 +136,10 @@ def run(
                 existing = None if stage.name in forced else _cached(store, stage, fp)
                 if existing is None:
                     existing = _build(cfg, store, item, built, runtime or Runtime(), benchmark)
+                else:
+                    _announce(stage, runtime or Runtime(), None)
+        else:
+            _announce(stage, runtime or Runtime(), None)
         built[stage.name] = existing
     return built
 
@@ -172,14 +182,47 @@ def _build(
             on_progress=lambda phase, done, total: bar.update(task, completed=done, total=total, description=phase),
             on_epoch=lambda row: bar.console.print("  " + "  ".join(_cell(k, v) for k, v in row.items())),
         )
+        _announce(stage, runtime, built_ctx.scratch)
         stats = stage.build(cfg, inputs, ctx)
         for message in stats.get("warnings", []):  # a stage's warnings stay in its manifest too
             warn(message)
         build_s = time.perf_counter() - started - checked_s
         built_ctx.stats = stats | {"input_check_seconds": round(checked_s, 4), "build_seconds": round(build_s, 3)}
     assert built_ctx.artifact is not None
+    if stage.distributed:
+        distributed.barrier()  # the other ranks read the installed artifact
     log(f"stage {stage.name!r}: wrote {built_ctx.artifact.path}")
     return built_ctx.artifact
+
+
+def _announce(stage: Stage, runtime: Runtime, scratch: Path | None) -> None:
+    """Rank 0 of a torchrun run tells the other ranks whether it trains (in `scratch`, the resume folder they
+    share) or found the artifact built (None); a no-op for a single process."""
+    if stage.distributed and distributed.active():
+        distributed.join(runtime.device)
+        distributed.broadcast(None if scratch is None else str(scratch))
+
+
+def _follow(
+    cfg: PipelineConfig,
+    store: ArtifactStore,
+    item: Resolved,
+    built: Mapping[str, Artifact],
+    runtime: Runtime,
+    benchmark: str | None,
+) -> Artifact:
+    """A data-parallel stage on a torchrun rank other than 0: train beside rank 0, which alone takes the lock,
+    writes checkpoints and logs and installs, into a throwaway folder; then read what rank 0 installed."""
+    stage = item.stage
+    distributed.join(runtime.device)
+    scratch = distributed.broadcast(None)
+    if scratch is not None:
+        inputs = {name: built[name] for name in stage.inputs_for(cfg)}
+        with tempfile.TemporaryDirectory(prefix=f"fftool-rank{distributed.rank()}-") as tmp:
+            ctx = StageContext(Path(tmp), Path(scratch), benchmark, runtime.device)
+            stage.build(cfg, inputs, ctx)
+        distributed.barrier()  # rank 0 has installed the artifact
+    return store.require(stage.name, item.fingerprint, stage.version, stage.command_line(cfg, benchmark))
 
 
 def _cell(key: str, value: Any) -> str:

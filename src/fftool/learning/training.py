@@ -23,6 +23,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from fftool.artifacts.schema import TENSORBOARD_DIR
 from fftool.errors import IntegrityError
+from fftool.learning import distributed
 from fftool.ui import warn
 
 # What loading a readable checkpoint into objects it does not fit raises (missing or extra keys, other
@@ -295,25 +296,49 @@ def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log
     training columns, validation metrics); they go to `run.on_epoch`, TensorBoard (live under `run.scratch`,
     copied into `run.out_dir` at the end) and `run.out_dir / log_name`. `run.on_progress` gets
     ("epoch e/E", done, total) from each tick of `trainer.epoch`.
+
+    Under torchrun (`distributed`), rank 0 alone validates (its metrics are broadcast, so every rank keeps
+    the same best epoch), writes the checkpoint, curves and log, and reports; every rank resumes from the
+    one checkpoint, the others after rank 0 has read it (and set it aside when damaged).
     """
-    model, scratch, on_progress = trainer.model, run.scratch, run.on_progress
+    model, scratch, leader = trainer.model, run.scratch, distributed.leader()
+    on_progress = run.on_progress if leader else None
     stateful = {"model": model, "optimizer": trainer.optimizer}
     checkpoint = scratch / "last.pt"
-    progress = resume(checkpoint, trainer.device, stateful)
-    curves = Curves(scratch, progress.start_epoch)
+    progress = _resume_everywhere(checkpoint, trainer.device, stateful)
+    curves = Curves(scratch, progress.start_epoch) if leader else None
     for epoch in range(progress.start_epoch, epochs):
         model.train()
         tic = time.perf_counter()
-        torch.manual_seed(epoch_seed(seed, epoch))  # dropout and whatever else draws from the global generator
+        # dropout and whatever else draws from the global generator (each rank its own stream)
+        torch.manual_seed(distributed.rank_seed(epoch_seed(seed, epoch)))
         tick = partial(on_progress, f"epoch {epoch + 1}/{epochs}") if on_progress else _quiet
         trained = trainer.epoch(epoch, tick, progress.log[-1] if progress.log else None)
-        metrics = trainer.validate()
+        metrics = distributed.broadcast(trainer.validate() if leader else None)
         row = {"epoch": epoch + 1, "seconds": round(time.perf_counter() - tic, 3), **trained, **metrics}
         progress.record(row, metrics[best_by], model)
-        curves.add(row)
-        if run.on_epoch:
-            run.on_epoch(row)
-        save_progress(checkpoint, progress, epoch, stateful)
-    curves.finish(run.out_dir)
-    write_csv(run.out_dir / log_name, progress.log)
+        if curves is not None:
+            curves.add(row)
+            if run.on_epoch:
+                run.on_epoch(row)
+            save_progress(checkpoint, progress, epoch, stateful)
+    if curves is not None:
+        curves.finish(run.out_dir)
+        write_csv(run.out_dir / log_name, progress.log)
+    return progress
+
+
+def _resume_everywhere(checkpoint: Path, device: torch.device, stateful: dict[str, Any]) -> Progress:
+    """`resume` on rank 0, then on the other ranks (which must find the epoch rank 0 found)."""
+    if not distributed.active():
+        return resume(checkpoint, device, stateful)
+    progress = resume(checkpoint, device, stateful) if distributed.leader() else None
+    start = distributed.broadcast(progress.start_epoch if progress else None)
+    if progress is None:
+        progress = resume(checkpoint, device, stateful)
+    if progress.start_epoch != start:
+        raise IntegrityError(
+            f"{checkpoint}: rank {distributed.rank()} resumes at epoch {progress.start_epoch + 1}, "
+            f"rank 0 at {start + 1}; start the run again"
+        )
     return progress

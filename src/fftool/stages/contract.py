@@ -80,6 +80,8 @@ class Stage:
     reads: Callable[[PipelineConfig], Mapping[str, tuple[str, ...]]] = field(default=lambda cfg: {})
     # For a producer: its parameters (from its resolved params) that the named parts of its artifact depend on.
     view: Callable[[Mapping[str, Any], tuple[str, ...]], dict[str, Any]] | None = None
+    # Trains data-parallel under torchrun: every rank runs `build`, rank 0 alone installs (pipeline._follow).
+    distributed: bool = False
 
     def inputs_for(self, cfg: PipelineConfig | None) -> tuple[str, ...]:
         return self.inputs if self.needs is None or cfg is None else self.needs(cfg)

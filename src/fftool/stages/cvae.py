@@ -18,6 +18,7 @@ import itertools
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, Final
 
 import numpy as np
@@ -26,6 +27,7 @@ import torch
 from fftool.artifacts.schema import CVAE_LOG_FILE, CVAE_MODEL_FILE
 from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig, PipelineConfig
+from fftool.learning import distributed
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import autocast, build_model, sample
 from fftool.learning.features import TRAINING_READS, Prepared, decoder_features, prepare, uses_forces
@@ -134,6 +136,23 @@ def val_windows(scenes: SceneSet, cfg: CVAEConfig) -> np.ndarray:
     return np.arange(scenes.windows)
 
 
+def _rows(index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """The windows `index` of a batch field."""
+    return values[index]
+
+
+class _Loss(torch.nn.Module):
+    """`training_loss` as a module's forward, which DistributedDataParallel wraps (its gradients are averaged
+    over the ranks during backward)."""
+
+    def __init__(self, model: ForceFormer, cfg: CVAEConfig, forces_cfg: ForcesConfig | None, dt_s: float | None):
+        super().__init__()
+        self.model, self.cfg, self.forces_cfg, self.dt_s = model, cfg, forces_cfg, dt_s
+
+    def forward(self, prepared: Prepared, gen: torch.Generator) -> LossParts:
+        return training_loss(self.model, prepared, self.cfg, self.forces_cfg, self.dt_s, gen)
+
+
 @dataclass
 class _Trainer:
     """The CVAE-specific half of `training.fit`: an epoch of batched windows under AgentFormer's loss, with
@@ -151,24 +170,43 @@ class _Trainer:
     per_epoch: int  # training windows per epoch
     device: torch.device
     first_steps: list[int] = field(init=False)  # each epoch's first optimizer step; [-1]: the schedule's budget
+    loss: torch.nn.Module | None = field(init=False)  # under torchrun: the DDP-wrapped loss; else None
 
     def __post_init__(self) -> None:
         steps = [len(epoch_plan(self.train, self.cfg, epoch, self.per_epoch)[0]) for epoch in range(self.cfg.epochs)]
         self.first_steps = [0, *itertools.accumulate(steps)]  # the budget is known up front
+        self.loss = (
+            distributed.wrap(_Loss(self.model, self.cfg, self.forces_cfg, self.dt_s), self.device)
+            if distributed.active()
+            else None
+        )
 
     def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
         """One epoch of the (seed, epoch) plan: throughput (totals carried on from `previous`), the last learning
-        rate and the mean loss terms."""
+        rate and the mean loss terms.
+
+        Under torchrun every rank draws the same plan and builds the same global batch (agent caps included),
+        then trains on its windows (`distributed.shard`) with its loss scaled so that the averaged gradient is
+        the global batch's; rotations and latent samples come from the rank's own generator."""
         cfg, device = self.cfg, self.device
         tic = time.perf_counter()
-        gen = generator(epoch_seed(cfg.seed, epoch), device)
+        gen = generator(distributed.rank_seed(epoch_seed(cfg.seed, epoch)), device)
         plan, rng = epoch_plan(self.train, cfg, epoch, self.per_epoch)
         sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0}
-        agents = 0
+        agents, weight = 0, 1.0  # weight: this rank's share of the global batch's mean loss
         for step, members in enumerate(plan):
             batch = self.train.batch(members, cfg.max_agents, rng)
+            agents += int(batch.agent_mask.sum())
+            if self.loss is not None:
+                mine, share = distributed.shard(members)
+                batch, weight = batch.map(partial(_rows, torch.as_tensor(mine))), share / distributed.world_size()
             prepared = prepare(batch.to(device), cfg.variant, self.obs_len, rotate=cfg.rotate, generator=gen)
-            parts = training_loss(self.model, prepared, cfg, self.forces_cfg, self.dt_s, gen)
+            if self.loss is None:
+                parts = training_loss(self.model, prepared, cfg, self.forces_cfg, self.dt_s, gen)
+                total = parts.total
+            else:
+                parts = self.loss(prepared, gen)
+                total = parts.total * share
             factor = lr_factor(
                 cfg.schedule,
                 self.first_steps[epoch] + step,
@@ -178,11 +216,11 @@ class _Trainer:
                 cfg.decay_every,
                 cfg.decay_gamma,
             )
-            optimizer_step(self.model, self.optimizer, parts.total, cfg.lr * factor, cfg.grad_clip)
-            agents += int(prepared.agent_mask.sum())
+            optimizer_step(self.model, self.optimizer, total, cfg.lr * factor, cfg.grad_clip)
             for name, value in zip(sums, parts):
-                sums[name] += value.item() / len(plan)
+                sums[name] += value.item() * weight / len(plan)
             tick(step + 1, len(plan))
+        sums = distributed.sum_over_ranks(sums, device)
         train_s = time.perf_counter() - tic
         seen = previous or {"agent_windows_seen": 0, "train_seconds": 0.0}
         return {
@@ -241,7 +279,7 @@ def train(
     windows, forces: input artifacts (no forces for the baseline and goal variants); ctx: the benchmark,
     build and scratch folders, device, callbacks.
     """
-    benchmark, device, out_dir = ctx.need_benchmark(), ctx.device(), ctx.out_dir
+    benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.out_dir
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
     started = time.perf_counter()
     progress = fit(
@@ -264,6 +302,8 @@ def train(
         "variant": cfg.variant,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
+        "world_size": distributed.world_size(),  # torchrun ranks (docs/scaling.md); results depend on it too
+        "backend": distributed.backend(),
         "train_windows": trainer.train.windows,
         "train_windows_per_epoch": trainer.per_epoch,
         "val_windows": len(trainer.val_subset),
@@ -295,6 +335,7 @@ STAGE = Stage(
     build=build,
     description=lambda cfg, benchmark: f"train CVAE {cfg.cvae.variant} ({benchmark})",
     per_benchmark=True,
+    distributed=True,
     needs=reads,
     reads=lambda cfg: {"forces": TRAINING_READS[cfg.cvae.variant]},
     command_args=lambda cfg: f" --variant {cfg.cvae.variant}",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
@@ -20,6 +20,7 @@ import torch
 from fftool.artifacts.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
 from fftool.artifacts.store import Artifact
 from fftool.config import GoalConfig, GoalsConfig, PipelineConfig
+from fftool.learning import distributed
 from fftool.learning.batches import AgentWindows, SceneMaps, load_agent_windows, load_scene_maps
 from fftool.learning.goal_model import build_model, evaluate, goal_inputs, goal_loss, input_channels
 from fftool.learning.training import (
@@ -59,20 +60,32 @@ class _Trainer:
     pred_len: int
     per_epoch: int  # training windows per epoch
     device: torch.device
+    net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
+
+    def __post_init__(self) -> None:
+        self.net = distributed.wrap(self.model, self.device)
 
     def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
         """One epoch over `per_epoch` windows drawn by (seed, epoch); the mean loss terms. (No column adds up
-        over epochs, so `previous` goes unused.)"""
+        over epochs, so `previous` goes unused.)
+
+        Under torchrun every rank draws the same order and augmentations for the global batch and trains on its
+        windows (`distributed.shard`), its loss scaled so that the averaged gradient is the global batch's."""
         cfg, device = self.cfg, self.device
         batches = -(-self.per_epoch // cfg.batch_size)
         gen = generator(epoch_seed(cfg.seed, epoch), torch.device("cpu"))
         order = torch.randperm(len(self.train_xy), generator=gen)[: self.per_epoch]
         sums = {"loss": 0.0, "bce": 0.0, "mse": 0.0}
+        share, weight = 1.0, 1.0  # this rank's factor on its mean loss, and its share of the global mean
         for b in range(batches):
             index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
-            xy = self.train_xy[index].to(device)
             angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
             mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
+            if distributed.active():
+                mine, share = distributed.shard(index.numpy())
+                keep = torch.as_tensor(mine)
+                index, angle, mirror, weight = index[keep], angle[keep], mirror[keep], share / distributed.world_size()
+            xy = self.train_xy[index].to(device)
             if not cfg.augment or cfg.align_heading:
                 angle = torch.zeros_like(angle)
             if not cfg.augment:
@@ -80,12 +93,14 @@ class _Trainer:
             past, scene = xy[:, : self.obs_len], self.train_scene[index].to(device)
             x, center, R = goal_inputs(past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len)
             goal_cells = world_to_cells(xy[:, -1:], center, R, cfg.resolution_m, cfg.crop_cells)[:, 0]
-            loss, bce, mse = goal_loss(self.model(x), goal_cells, cfg)
+            loss, bce, mse = goal_loss(self.net(x), goal_cells, cfg)
             factor = lr_factor(cfg.schedule, epoch * batches + b, cfg.epochs * batches, cfg.warmup_fraction)
-            optimizer_step(self.model, self.optimizer, loss, cfg.lr * factor, cfg.grad_clip)
+            total = loss * share if distributed.active() else loss
+            optimizer_step(self.model, self.optimizer, total, cfg.lr * factor, cfg.grad_clip)
             for name, value in (("loss", loss), ("bce", bce), ("mse", mse)):
-                sums[name] += value.item() / batches
+                sums[name] += value.item() * weight / batches
             tick(b + 1, batches)
+        sums = distributed.sum_over_ranks(sums, device)
         return {"train_loss": sums["loss"], "train_bce": sums["bce"], "train_mse_cells2": sums["mse"]}
 
     def validate(self) -> dict[str, float]:
@@ -146,7 +161,7 @@ def train(
     cfg: the `goal` section; goals_cfg: the sampling used for validation goal-FDE@K; windows, maps: input
     artifacts; ctx: the benchmark (its train part is used), build and scratch folders, device, callbacks.
     """
-    benchmark, device, out_dir = ctx.need_benchmark(), ctx.device(), ctx.out_dir
+    benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.out_dir
     trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
     started = time.perf_counter()
     progress = fit(
@@ -166,6 +181,8 @@ def train(
         "benchmark": benchmark,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
+        "world_size": distributed.world_size(),  # torchrun ranks (docs/scaling.md); results depend on it too
+        "backend": distributed.backend(),
         "train_agent_windows": len(trainer.train_xy),
         "train_per_epoch": trainer.per_epoch,
         "val_agent_windows": len(trainer.val),
@@ -192,4 +209,5 @@ STAGE = Stage(
     build=build,
     description=lambda cfg, benchmark: f"train goal U-Net ({benchmark})",
     per_benchmark=True,
+    distributed=True,
 )
