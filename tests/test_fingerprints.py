@@ -23,8 +23,11 @@ CELLS = [(stage, None, "paper", stage) for stage in ("tracks", "windows", "force
 CELLS += [(f"cvae[{v}]", v, "paper", "cvae") for v in ("baseline", "goal", "dr", "re")]
 CELLS += [(f"evaluate[{p},{protocol}]", p, protocol, "evaluate")
           for p in ("cv", "baseline", "goal", "dr", "re") for protocol in ("paper", "oracle")]  # fmt: skip
-# Fields that choose a cell rather than configure one, and paths (raw files enter by content hash).
-NOT_PARAMETERS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol", "data.raw_dir", "data.scenes_dir"}
+# Fields that choose a cell rather than configure one, and paths (raw files, and a dataset TOML's description
+# and files, enter by content hash: tests/test_custom_dataset.py checks that an edited file rebuilds).
+NOT_PARAMETERS = {
+    "cvae.variant", "evaluate.predictor", "evaluate.protocol", "data.raw_dir", "data.scenes_dir", "data.dataset",
+}  # fmt: skip
 
 
 def _perturbed(section: BaseModel, name: str) -> Any:

@@ -17,7 +17,7 @@ from typing import Annotated, Any, Final, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
-from fftool.dataset.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Benchmark, Part
+from fftool.dataset.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Part
 from fftool.errors import ConfigError
 from fftool.paper import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
 
@@ -48,6 +48,9 @@ class DataConfig(_Section):
     raw_dir: str = DEFAULT_RAW_DIR
     # Scene images and world->pixel homographies, one folder per benchmark scene (for plots and maps).
     scenes_dir: str = DEFAULT_SCENES_DIR
+    # A dataset TOML (docs/data.md, "Your own dataset"): its files replace ETH/UCY and its name is the one
+    # benchmark. Empty: ETH/UCY from raw_dir and scenes_dir. Its description and files enter by content hash.
+    dataset: str = ""
 
 
 class IngestConfig(_Section):
@@ -258,7 +261,8 @@ class EvaluateConfig(_ConstantVelocity):
 class ReportConfig(_Section):
     """What `ablate` and `reproduce` cover and how the tables count (not part of any fingerprint)."""
 
-    benchmarks: tuple[Benchmark, ...] = Field(BENCHMARKS, min_length=1)
+    # ETH/UCY's, or a dataset's name (data.dataset; then the default is that one benchmark).
+    benchmarks: tuple[str, ...] = Field(BENCHMARKS, min_length=1)
     variants: tuple[ForceFormerVariant, ...] = FORCEFORMER_VARIANTS  # baseline always included
     collision_pairs: Literal["ordered", "unordered"] = "ordered"  # the paper's sum is over m != n
     collision_sample: Literal["best_ade", "joint"] = "best_ade"  # per-agent best-ADE (paper) or one per window
@@ -299,6 +303,30 @@ def seeded_config(cfg: PipelineConfig, seed: int) -> PipelineConfig:
     of each, so a profile that sets no seed keeps its artifacts (and fingerprints) as grid seed 0."""
     sections = {name: getattr(cfg, name).model_copy(update={"seed": seed}) for name in SEEDED_SECTIONS}
     return cfg.model_copy(update=sections)
+
+
+def benchmark_names(cfg: PipelineConfig) -> tuple[str, ...]:
+    """The benchmarks the data offers: the five ETH/UCY scenes, or a dataset's one name (data.dataset)."""
+    if not cfg.data.dataset:
+        return BENCHMARKS
+    from fftool.dataset.custom import load_dataset
+
+    return (load_dataset(cfg.data.dataset).name,)
+
+
+def _dataset_benchmarks(cfg: PipelineConfig, chosen: bool, origin: str) -> PipelineConfig:
+    """With data.dataset, report.benchmarks defaults to the dataset's one name (the dataset is read here, so a
+    bad dataset TOML fails before any stage runs). Benchmarks the data lacks fail when a stage is planned
+    (`pipeline.resolve`), so `--benchmarks` on the command line can still choose among the data's."""
+    from fftool.errors import RawDataError
+
+    try:
+        offered = benchmark_names(cfg)
+    except RawDataError as exc:
+        raise ConfigError(f"invalid configuration in {origin}: data.dataset: {exc}") from exc
+    if cfg.data.dataset and not chosen:
+        return cfg.model_copy(update={"report": cfg.report.model_copy(update={"benchmarks": offered})})
+    return cfg
 
 
 def predictor_config(cfg: PipelineConfig, predictor: str) -> PipelineConfig:
@@ -387,6 +415,8 @@ def load_config(
         raw = apply_overrides(raw, list(overrides or []), values)
         origin = f"{origin} with overrides {[*(overrides or []), *(values or {})]}"
     try:
-        return PipelineConfig.model_validate(raw)
+        cfg = PipelineConfig.model_validate(raw)
     except ValidationError as exc:
         raise ConfigError(_describe(exc, origin)) from exc
+    report = raw.get("report")
+    return _dataset_benchmarks(cfg, isinstance(report, dict) and "benchmarks" in report, origin)

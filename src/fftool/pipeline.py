@@ -25,8 +25,7 @@ from typing import Any
 
 from fftool.artifacts.hashing import fingerprint
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
-from fftool.config import PipelineConfig
-from fftool.dataset.scenes import BENCHMARKS
+from fftool.config import PipelineConfig, benchmark_names
 from fftool.errors import FftoolError
 from fftool.learning import distributed
 from fftool.stages import cvae, evaluate, forces, goal, goals, maps, tracks, windows
@@ -81,8 +80,9 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
     for stage in plan(targets, cfg):
         params = stage.section(cfg).model_dump(mode="json")
         if stage.per_benchmark:
-            if benchmark not in BENCHMARKS:
-                raise FftoolError(f"stage {stage.name!r} needs a benchmark, one of {', '.join(BENCHMARKS)}")
+            offered = benchmark_names(cfg)
+            if benchmark not in offered:
+                raise FftoolError(f"stage {stage.name!r} needs a benchmark, one of {', '.join(offered)}")
             params["benchmark"] = benchmark
         upstream = [resolved[name] for name in stage.inputs_for(cfg)]
         inputs = dict(_input_key(up, stage.reads(cfg).get(up.stage.name)) for up in upstream)

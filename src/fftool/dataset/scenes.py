@@ -93,6 +93,15 @@ SOURCE_SCENE: Final[dict[str, str | None]] = {
 }
 SCENES: Final[tuple[str, ...]] = BENCHMARKS  # one scene folder per benchmark, named after it
 
+
+def scene_of(source: str) -> str | None:
+    """The scene (map) of a tracks source: SOURCE_SCENE for ETH/UCY; a dataset's source `<name>/<file>`
+    (fftool.dataset.custom) belongs to the dataset's one scene, its name."""
+    if source in SOURCE_SCENE:
+        return SOURCE_SCENE[source]
+    return source.split("/", 1)[0] if "/" in source else None
+
+
 # Published goal-module FDE@20 (m) on ETH/UCY: the targets for the goal estimator alone
 # (research/goal_module.md §5.3; both take the best of 20 goals, independently of the ADE minimum).
 PUBLISHED_GOAL_FDE20: Final[dict[str, dict[str, float]]] = {

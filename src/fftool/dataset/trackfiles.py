@@ -101,13 +101,15 @@ def read_tracks(
     seconds_per_unit: float | None = None,
     frame_step_s: float | None = None,
     max_speed_mps: float = MAX_SPEED_MPS,
+    frames: bool | None = None,
 ) -> pd.DataFrame:
     """Rows (time_s, agent, x, y) sorted by agent then time; x, y in metres.
 
     seconds_per_unit: seconds per unit of the time column. Default: 1 for a time column (seconds); for a
     frame column, `frame_step_s` divided by the smallest gap between frame numbers (consecutive frames
     are one step of `frame_step_s` apart). An agent moving faster than `max_speed_mps` is an error: it
-    usually means positions in another unit (see `units`).
+    usually means positions in another unit (see `units`). frames: whether the time column holds frame
+    numbers; None judges by its name (FRAME_COLUMNS).
     """
     if units not in UNITS:
         raise RawDataError(path, f"unknown unit {units!r}: expected one of {', '.join(UNITS)}")
@@ -121,7 +123,7 @@ def read_tracks(
         raise RawDataError(path, "no rows: expected one row per agent and time")
     time = _numbers(path, frame, time_col, csv)
     if seconds_per_unit is None:
-        if time_col in FRAME_COLUMNS:
+        if frames if frames is not None else time_col in FRAME_COLUMNS:
             gaps = np.diff(np.unique(time))
             if frame_step_s is None or gaps.size == 0:
                 raise RawDataError(path, f"column {time_col!r} holds frame numbers: give the seconds per frame")

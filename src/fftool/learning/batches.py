@@ -16,7 +16,7 @@ import torch
 
 from fftool.artifacts.schema import AGENT_WINDOWS_FILE, MAPS_TRANSFORMS_FILE, WINDOWS_FILE, map_file
 from fftool.artifacts.store import Artifact
-from fftool.dataset.scenes import SOURCE_SCENE
+from fftool.dataset.scenes import scene_of
 
 
 @dataclass(frozen=True)
@@ -88,7 +88,7 @@ class SceneMaps:
         """(M,) scene index of each source; sources without a map get the zero scene."""
         lookup = {name: i for i, name in enumerate(self.names)}
         none = len(self.names)
-        return torch.as_tensor([lookup.get(SOURCE_SCENE.get(s) or "", none) for s in sources], dtype=torch.long)
+        return torch.as_tensor([lookup.get(scene_of(s) or "", none) for s in sources], dtype=torch.long)
 
     def to(self, device: torch.device) -> SceneMaps:
         return SceneMaps(self.stack.to(device), self.origins.to(device), self.resolution_m, self.names)

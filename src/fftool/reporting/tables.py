@@ -44,7 +44,7 @@ class Grid:
     @property
     def scenes(self) -> list[str]:
         present = {b for b, _, _ in self.scores}
-        return [b for b in BENCHMARKS if b in present]
+        return [b for b in BENCHMARKS if b in present] + sorted(present - set(BENCHMARKS))  # then a dataset's
 
     @property
     def predictors(self) -> list[str]:

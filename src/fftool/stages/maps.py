@@ -2,7 +2,8 @@
 
 Reads: `scenes/<scene>/reference.png`, `world_to_pixel.txt` and (eth, hotel) `obstacle_map.png`.
 Writes: `maps/<fp>/<scene>.npy` (C, H, W), transforms.json, and `<scene>_check.png` for people to check.
-Run: `fftool maps`.
+Run: `fftool maps`. With `data.dataset`, the one scene is the dataset's: its `scene_image` and `homography`
+(image pixel -> world metres, inverted here), or none (its crops get the all-zero map, as uni_examples').
 
 The raster covers the ground footprint of the image (its corners through the inverse homography) plus
 a margin, so no trajectory is used to build any map, and a test scene's map never sees its test data.
@@ -26,7 +27,8 @@ from fftool.artifacts.hashing import sha256_file
 from fftool.artifacts.schema import MAPS_TRANSFORMS_FILE, map_check_file, map_file
 from fftool.artifacts.store import Artifact
 from fftool.config import MapsConfig, PipelineConfig
-from fftool.dataset.scene_images import apply_homography, read_image, read_scene
+from fftool.dataset.custom import load_dataset
+from fftool.dataset.scene_images import SceneImage, apply_homography, read_homography, read_image, read_scene
 from fftool.dataset.scenes import SCENES
 from fftool.stages.contract import Stage, StageContext
 
@@ -58,6 +60,13 @@ def build_scene(
     scene = read_scene(scene_dir)
     if scene is None:
         return None
+    return build_from_image(scene, scene_dir / "obstacle_map.png", cfg)
+
+
+def build_from_image(
+    scene: SceneImage, obstacle_map: Path | None, cfg: MapsConfig
+) -> tuple[np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray]]:
+    """`build_scene` from an image and its world->pixel homography (and an obstacle map where one exists)."""
     world_to_pixel, image = scene.homography, scene.image
     h, w = image.shape[:2]
     corners = apply_homography(np.linalg.inv(world_to_pixel), np.array([[0, 0], [w, 0], [0, h], [w, h]], float))
@@ -74,8 +83,8 @@ def build_scene(
     )
     inside = inside > 127
     obstacle = np.zeros((height, width), np.float32)
-    if (scene_dir / "obstacle_map.png").is_file():
-        gray = read_image(scene_dir / "obstacle_map.png", cv2.IMREAD_GRAYSCALE)
+    if obstacle_map is not None and obstacle_map.is_file():
+        gray = read_image(obstacle_map, cv2.IMREAD_GRAYSCALE)
         obstacle = cv2.warpPerspective(gray, cell_to_pixel, (width, height), flags=flags | cv2.INTER_NEAREST) > 127
         obstacle = obstacle.astype(np.float32)
 
@@ -230,8 +239,39 @@ def rasterise(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any
     }
 
 
+def rasterise_dataset(cfg: MapsConfig, dataset_toml: Path, out_dir: Path) -> dict[str, Any]:
+    """A dataset's one scene: its image and pixel->world homography, or no map (a warning) without them."""
+    dataset = load_dataset(dataset_toml)
+    transforms, missing = {}, []
+    found = dataset.scene_files()
+    if found is None:
+        missing.append(dataset.name)
+    else:
+        image_path, homography_path = found
+        pixel_to_world = read_homography(homography_path)
+        image = cv2.cvtColor(read_image(image_path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        raster, transform, images = build_from_image(SceneImage(image, np.linalg.inv(pixel_to_world)), None, cfg)
+        np.save(out_dir / map_file(dataset.name), raster)
+        _check_figure(dataset.name, raster, images, transform, out_dir / map_check_file(dataset.name))
+        transforms[dataset.name] = transform
+    (out_dir / MAPS_TRANSFORMS_FILE).write_text(
+        json.dumps({"scenes": transforms, "channels": channel_names(cfg)}, indent=2)
+    )
+    return {
+        "scenes": transforms,
+        "channels": channel_names(cfg),
+        "without_geometry": missing,
+        "warnings": [
+            f"dataset {s}: no scene_image + homography; goal crops get an all-zero map (goal variants still run)"
+            for s in missing
+        ],
+    }
+
+
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
-    """The stage contract: one raster per scene of `data.scenes_dir`."""
+    """The stage contract: one raster per scene of `data.scenes_dir` (or the scene of `data.dataset`)."""
+    if cfg.data.dataset:
+        return rasterise_dataset(cfg.maps, Path(cfg.data.dataset), ctx.out_dir)
     return rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.out_dir)
 
 
@@ -243,5 +283,9 @@ STAGE = Stage(
     section=lambda cfg: cfg.maps,
     build=build,
     description=lambda cfg, benchmark: "scene maps",
-    external_inputs=lambda cfg: scene_input_hashes(Path(cfg.data.scenes_dir)),
+    external_inputs=lambda cfg: (
+        load_dataset(cfg.data.dataset).scene_hashes()
+        if cfg.data.dataset
+        else scene_input_hashes(Path(cfg.data.scenes_dir))
+    ),
 )

@@ -52,14 +52,15 @@ def slice_all(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, A
             cfg.window_stride,
         )
 
+    split = _split_of(tracks)
     summary = []
     # Stream one benchmark part at a time: the agent-window positions are the bulk of the data.
     with (
         pq.ParquetWriter(out_dir / WINDOWS_FILE, WINDOWS_SCHEMA) as window_writer,
         pq.ParquetWriter(out_dir / AGENT_WINDOWS_FILE, agent_windows_schema(window_len)) as agent_writer,
     ):
-        for benchmark, part in ((b, p) for b in BENCHMARKS for p in PARTS):
-            members = LEAVE_ONE_OUT[benchmark][part]
+        for benchmark, part in ((b, p) for b in split for p in PARTS):
+            members = split[benchmark][part]
             windows, agents = _assemble(benchmark, part, members, sequences)
             window_writer.write_table(windows)
             agent_writer.write_table(agents)
@@ -82,6 +83,16 @@ def slice_all(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, A
             "windows.obs_len / windows.pred_len"
         )
     return {"window_len": window_len, "obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "summary": summary}
+
+
+def _split_of(tracks: Artifact) -> dict[str, dict[str, tuple[tuple[str, str], ...]]]:
+    """benchmark -> part -> (source, split) files: ETH/UCY's leave-one-out table, or a dataset's own parts
+    (recorded by the tracks stage), so the split follows the tracks' fingerprint."""
+    dataset = tracks.manifest.stats.get("dataset")
+    if dataset is None:
+        return {benchmark: LEAVE_ONE_OUT[benchmark] for benchmark in BENCHMARKS}
+    parts = {part: tuple((source, split) for source, split in dataset["parts"][part]) for part in PARTS}
+    return {dataset["name"]: parts}
 
 
 def _constant(value: str, n: int) -> pa.DictionaryArray:
