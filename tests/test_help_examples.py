@@ -47,6 +47,7 @@ from tests.doc_fixtures import BLOCK_TIMEOUT_S, ROOT, make_checkout, shell_env, 
 ORDER = [
     "fftool fetch-data",  # not run (internet); make_checkout places the synthetic tree where it would
     "fftool",
+    "fftool simulate-crowd",  # writes crowd/, which `fftool ingest --dataset crowd/dataset.toml` reads
     "fftool ingest",
     "fftool forces",
     "fftool maps",

@@ -190,11 +190,16 @@ DeviceOption = Annotated[
 
 
 def check_benchmarks(value: str) -> str:
+    """ETH/UCY names, or all of them; any other well-formed name is a dataset's (data.dataset), which the
+    engine checks once the configuration is read."""
+    from fftool.dataset.custom import valid_name
+
     names = BENCHMARKS if value == "all" else tuple(v.strip() for v in value.split(","))
-    unknown = [name for name in names if name not in BENCHMARKS]
+    unknown = [name for name in names if name not in BENCHMARKS and not valid_name(name)]
     if unknown:
         raise typer.BadParameter(
-            f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(BENCHMARKS)} or all"
+            f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(BENCHMARKS)} or all, "
+            "or a dataset's name"
         )
     return ",".join(names)
 

@@ -27,7 +27,10 @@ from fftool.cli.app import (
 from fftool.dataset.scenes import BENCHMARKS
 
 
-@app.command(epilog="Example: fftool ingest --raw ../shared/data/eth_ucy/raw --root artifacts")
+@app.command(
+    epilog="Examples:\n\n  fftool ingest --raw ../shared/data/eth_ucy/raw --root artifacts\n\n"
+    "  fftool ingest --dataset crowd/dataset.toml   # your own dataset (docs/data.md)"
+)
 @boundary
 def ingest(
     raw: Annotated[
@@ -39,16 +42,27 @@ def ingest(
             help="Raw Social-GAN root with all_data/, train/, val/. Default: data.raw_dir of the config.",
         ),
     ] = None,
+    dataset: Annotated[
+        Path | None,
+        typer.Option(
+            "--dataset",
+            exists=True,
+            dir_okay=False,
+            help="A dataset TOML (docs/data.md): its files instead of ETH/UCY. Default: data.dataset of the config.",
+        ),
+    ] = None,
     config: ConfigOption = None,
     set_: SetOption = None,
     root: RootOption = None,
     force: ForceOption = False,
 ) -> None:
-    """Validate the raw ETH/UCY files and build the tracks and windows artifacts, with a summary table."""
+    """Validate the raw ETH/UCY files (or a dataset's) and build the tracks and windows artifacts, with a summary."""
     from fftool.reporting.summaries import windows_summary_table
     from fftool.ui import out_console
 
     values = {"data.raw_dir": str(raw)} if raw else {}
+    if dataset:
+        values["data.dataset"] = str(dataset)
     built = run_stages(["tracks", "windows"], config, set_, root, force, values=values)
     out_console.print(windows_summary_table(built["windows"]))
 
