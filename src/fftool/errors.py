@@ -39,6 +39,10 @@ class RawDataError(FftoolError, ValueError):
         self.line_no = line_no
         self.problem = problem
 
+    def __reduce__(self) -> tuple[type, tuple[Path, str, int | None]]:
+        """Pickled with its own arguments, so a worker process can hand it back (`fftool.scheduler`)."""
+        return type(self), (self.path, self.problem, self.line_no)
+
 
 class ArtifactMissing(FftoolError, FileNotFoundError):
     """A stage needs an artifact that has not been built for these parameters."""

@@ -58,6 +58,36 @@ def reproduce(
             show_default=False,
         ),
     ] = None,
+    jobs: Annotated[
+        int,
+        typer.Option(
+            "--jobs",
+            "-j",
+            min=1,
+            help="Stage builds to run at once, each in its own worker process, in dependency order "
+            "(default 1: one after another in this process). Artifacts and tables are the same as with one job.",
+        ),
+    ] = 1,
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            "--threads",
+            min=1,
+            help="Torch threads per build. Default: the CPU cores shared out among --jobs (jobs × threads ≤ cores); "
+            "with one job, torch's own choice (one per core, or OMP_NUM_THREADS).",
+            show_default=False,
+        ),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            metavar="ADDRESS",
+            help="A Dask scheduler (tcp://host:8786) whose workers run the builds (pip install 'fftool[cluster]'); "
+            "the artifact root must be on a filesystem every worker sees (docs/scaling.md).",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """The whole DAG from raw files to Tables II-VI (md, csv, tex) and figures; built stages are reused.
 
@@ -84,6 +114,15 @@ def reproduce(
     profile = profile_file.stem if profile_file else "defaults"
     reports_dir = store.root / cfg.report.out_dir  # an absolute out_dir replaces the root
     out_dir = ablation.check_report_folder(out or reports_dir / profile, store.root, reports_dir)  # before any work
+    prebuild = None
+    if jobs > 1 or scheduler:
+        from fftool.scheduler import build_grid
+
+        prebuild = lambda grid: build_grid(grid, store, device, jobs, threads, scheduler)  # noqa: E731
+    elif threads:
+        import torch
+
+        torch.set_num_threads(threads)
     results = ablation.run(
         cfg,
         store,
@@ -91,6 +130,7 @@ def reproduce(
         benchmarks.split(",") if benchmarks else list(cfg.report.benchmarks),
         [v for v in (variants.split(",") if variants is not None else cfg.report.variants) if v],
         on_cell=lambda b, p, s: log(f"[bold]{b} / {p}{'' if s is None else f' / seed {s}'}[/]"),
+        prebuild=prebuild,
     )
     command = "fftool " + " ".join(sys.argv[1:])
     draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
@@ -118,6 +158,7 @@ _REPRODUCE_EXAMPLES = (
     "Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # ~11 min on a 2-core CPU\n\n"
     "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # 1 h 21 min on one CPU thread\n\n"
     "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --seeds 0,1,2   # 3 seeds, mean ±sd\n\n"
+    "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --jobs 2   # two builds at a time, 1 thread each\n\n"
     "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU\n\n"
     "  fftool ablate -c pipelines/quick.toml --variants dr --protocol fair --out fair/"
 )

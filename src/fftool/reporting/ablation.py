@@ -15,6 +15,7 @@ import platform
 import shutil
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,31 @@ def grid_seeds(cfg: PipelineConfig) -> list[int | None]:
     return list(cfg.report.seeds) or [None]
 
 
+@dataclass(frozen=True)
+class Cell:
+    """One evaluation of the grid: its seed (None: the sections' own), benchmark, predictor and configuration."""
+
+    seed: int | None
+    benchmark: str
+    predictor: str
+    cfg: PipelineConfig
+
+
+def cells(cfg: PipelineConfig, benchmarks: Iterable[str], variants: Iterable[str]) -> list[Cell]:
+    """Every seed × benchmark × predictor of the grid, in report order, with the configuration it runs."""
+    return [
+        Cell(seed, benchmark, predictor, predictor_config(cfg if seed is None else seeded_config(cfg, seed), predictor))
+        for seed in grid_seeds(cfg)
+        for benchmark in benchmarks
+        for predictor in predictors(cfg, variants)
+    ]
+
+
+# Builds what the cells need ahead of `run`, e.g. concurrently (fftool.scheduler.build_grid); returns
+# the seconds each (stage, fingerprint) build took.
+Prebuild = Callable[[list[tuple[PipelineConfig, str]]], dict[tuple[str, str], float]]
+
+
 def run(
     cfg: PipelineConfig,
     store: ArtifactStore,
@@ -48,29 +74,40 @@ def run(
     benchmarks: Iterable[str],
     variants: Iterable[str],
     on_cell: Callable[[str, str, int | None], None] | None = None,
+    prebuild: Prebuild | None = None,
 ) -> list[dict[str, Any]]:
-    """Build (or reuse) the evaluation of each seed × benchmark × predictor; their manifest stats with ids."""
+    """Build (or reuse) the evaluation of each seed × benchmark × predictor; their manifest stats with ids.
+
+    Each cell's `built_now` lists the stages it was first to need that were not in the store, and its
+    `cell_seconds` the time they took: with `prebuild` (parallel builds) their build times, else the cell's
+    wall time.
+    """
+    grid = cells(cfg, benchmarks, variants)
+    claimed: set[tuple[str, str]] = set()
+    missing = []
+    for cell in grid:
+        keys = [(r.stage.name, r.fingerprint) for r in pipeline.resolve(cell.cfg, ["evaluate"], cell.benchmark)]
+        missing.append([key for key in keys if key not in claimed and store.lookup(*key) is None])
+        claimed.update(keys)
+    seconds = prebuild([(cell.cfg, cell.benchmark) for cell in grid]) if prebuild else {}
     results = []
-    for seed, benchmark in ((s, b) for s in grid_seeds(cfg) for b in benchmarks):
-        for predictor in predictors(cfg, variants):
-            if on_cell:
-                on_cell(benchmark, predictor, seed)
-            cell = predictor_config(cfg if seed is None else seeded_config(cfg, seed), predictor)
-            missing = [r.stage.name for r in pipeline.resolve(cell, ["evaluate"], benchmark)
-                       if store.lookup(r.stage.name, r.fingerprint) is None]  # fmt: skip
-            started = time.perf_counter()
-            built = pipeline.run(cell, store, ["evaluate"], runtime=runtime, benchmark=benchmark)
-            artifact = built["evaluate"]
-            results.append(
-                artifact.manifest.stats
-                | {
-                    "artifact": artifact.id,
-                    "grid_seed": seed,
-                    "windows": built["windows"].id,
-                    "built_now": missing,  # stages this run had to build for the cell
-                    "cell_seconds": time.perf_counter() - started,
-                }
-            )
+    for cell, new in zip(grid, missing, strict=True):
+        if on_cell:
+            on_cell(cell.benchmark, cell.predictor, cell.seed)
+        started = time.perf_counter()
+        built = pipeline.run(cell.cfg, store, ["evaluate"], runtime=runtime, benchmark=cell.benchmark)
+        artifact = built["evaluate"]
+        took = sum(seconds.get(key, 0.0) for key in new) if prebuild else time.perf_counter() - started
+        results.append(
+            artifact.manifest.stats
+            | {
+                "artifact": artifact.id,
+                "grid_seed": cell.seed,
+                "windows": built["windows"].id,
+                "built_now": [stage for stage, _ in new],
+                "cell_seconds": took,
+            }
+        )
     return results
 
 

@@ -1,0 +1,235 @@
+"""Build a grid's stage builds concurrently, in dependency order, in worker processes.
+
+    cells (configurations) ──resolve──▶ nodes (stage, fingerprint) + edges (sources)
+    ready nodes ──submit──▶ executor (a local process pool, or a Dask cluster's) ──▶ artifacts in the store
+
+Every node a grid needs is one stage build, found once however many cells share it; it is submitted
+when everything it reads is in the store, and runs `pipeline.run(..., upstream=False)` in a worker,
+exactly as `fftool <stage command>` would. The artifact store makes concurrent builders safe (atomic
+installs, per-fingerprint locks; a killed worker leaves only an `.incomplete/` folder that the next
+build removes), so this module only orders work. A failed build stops the nodes that need it; the
+others go on, and the outcome says which failed, why, and which were not built because of it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+from fftool import pipeline
+from fftool.artifacts.store import ArtifactStore
+from fftool.config import PipelineConfig
+
+Key = tuple[str, str]  # (stage, fingerprint)
+LOGS = ".logs"  # under the artifact root: one log per build made by a worker
+
+
+@dataclass(frozen=True)
+class Node:
+    """One stage build: a configuration and benchmark that resolve to it, and the builds it reads."""
+
+    stage: str
+    fingerprint: str
+    cfg: PipelineConfig
+    benchmark: str | None
+    needs: frozenset[Key]
+
+    @property
+    def key(self) -> Key:
+        return self.stage, self.fingerprint
+
+    @property
+    def label(self) -> str:
+        return pipeline.STAGES[self.stage].description(self.cfg, self.benchmark)
+
+
+def plan(cells: Iterable[tuple[PipelineConfig, str]], target: str = "evaluate") -> dict[Key, Node]:
+    """Every stage build the cells' `target`s need, once each, with the builds each one reads."""
+    nodes: dict[Key, Node] = {}
+    for cfg, benchmark in cells:
+        for item in pipeline.resolve(cfg, [target], benchmark):
+            needs = frozenset(item.sources.items())
+            key = (item.stage.name, item.fingerprint)
+            where = benchmark if item.stage.per_benchmark else None
+            nodes.setdefault(key, Node(item.stage.name, item.fingerprint, cfg, where, needs))
+    return nodes
+
+
+@dataclass
+class Outcome:
+    """What a parallel build did: built (with seconds), failed (with the reason), and not built because a
+    build it needs failed (with that build's label)."""
+
+    built: dict[Key, float] = field(default_factory=dict)
+    failed: dict[Key, str] = field(default_factory=dict)
+    blocked: dict[Key, str] = field(default_factory=dict)
+
+
+def cores() -> int:
+    """CPU cores this process may use (its affinity mask where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def threads_per_job(jobs: int, threads: int | None = None) -> int:
+    """Torch threads for each of `jobs` concurrent builds: `threads` if given, else the cores shared out,
+    so jobs × threads never exceeds the cores (two builds with a thread per core each ran 10-100× slower)."""
+    return threads if threads else max(1, cores() // jobs)
+
+
+def log_file(root: Path, node: Node) -> Path:
+    """Where a worker's output for `node` goes (appended to, so a retried build keeps the failed try's)."""
+    return root / LOGS / f"{node.stage}-{node.fingerprint[:16]}.log"
+
+
+def build_node(root: str, node: Node, device: str, threads: int) -> float:
+    """Build one node in a worker process (its output into `<root>/.logs/`); the seconds it took."""
+    import torch
+
+    torch.set_num_threads(threads)
+    log_path = log_file(Path(root), node)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    with open(log_path, "a") as log, _redirected(log):
+        pipeline.run(
+            node.cfg,
+            ArtifactStore(Path(root)),
+            [node.stage],
+            runtime=pipeline.Runtime(device=device),
+            upstream=False,
+            benchmark=node.benchmark,
+        )
+    return time.perf_counter() - started
+
+
+@contextlib.contextmanager
+def _redirected(stream: object) -> Iterator[None]:
+    """stdout and stderr (rich's consoles follow them) into `stream` while a worker builds."""
+    saved = sys.stdout, sys.stderr
+    sys.stdout = sys.stderr = stream  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = saved
+
+
+def build_all(
+    nodes: dict[Key, Node],
+    store: ArtifactStore,
+    executor: Executor,
+    device: str,
+    threads: int,
+    on_event: Callable[[str, Node, str], None] = lambda event, node, detail: None,
+) -> Outcome:
+    """Build the missing nodes on `executor`, each once its inputs are in the store; never raises for a
+    failed build (see Outcome). `on_event(event, node, detail)`: "start", "done" (seconds), "failed" (reason)."""
+    outcome = Outcome()
+    missing = {key for key in nodes if store.lookup(*key) is None}
+    running: dict[Future[float], Key] = {}
+    while missing or running:
+        order = list(pipeline.STAGES)  # upstream stages first: the goal net before the CVAEs and evaluations
+        for key in sorted(missing, key=lambda k: (order.index(k[0]), k)):
+            node = nodes[key]
+            if node.needs & (missing | set(running.values())):
+                continue
+            missing.discard(key)
+            running[executor.submit(build_node, str(store.root), node, device, threads)] = key
+            on_event("start", node, "")
+        if not running:  # what is left needs a build that failed
+            break
+        finished, _ = wait(running, return_when=FIRST_COMPLETED)
+        for future in finished:
+            key = running.pop(future)
+            try:
+                outcome.built[key] = future.result()
+                on_event("done", nodes[key], f"{outcome.built[key]:.1f} s")
+            except Exception as exc:  # a worker's failure is reported, never raised: the others go on
+                outcome.failed[key] = _one_line(exc)
+                on_event("failed", nodes[key], outcome.failed[key])
+        _block_dependants(nodes, missing, outcome)
+    return outcome
+
+
+def _block_dependants(nodes: dict[Key, Node], missing: set[Key], outcome: Outcome) -> None:
+    """Take the nodes that need a failed (or blocked) build out of `missing`, naming that build."""
+    changed = True
+    while changed:
+        changed = False
+        for key in sorted(missing):
+            broken = [need for need in nodes[key].needs if need in outcome.failed or need in outcome.blocked]
+            if broken:
+                missing.discard(key)
+                outcome.blocked[key] = nodes[broken[0]].label
+                changed = True
+
+
+def _one_line(exc: BaseException) -> str:
+    """fftool's errors as they are (one line already), anything else with its type (a killed worker, a bug)."""
+    text = " ".join(str(exc).split())
+    return text if type(exc).__module__.startswith("fftool") and text else f"{type(exc).__name__}: {text}"
+
+
+@contextlib.contextmanager
+def local_pool(jobs: int) -> Iterator[Executor]:
+    """`jobs` fresh worker processes (spawned: a forked torch process can hang)."""
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        yield pool
+
+
+@contextlib.contextmanager
+def dask_pool(address: str) -> Iterator[Executor]:
+    """The workers of the Dask scheduler at `address` (`pip install 'fftool[cluster]'`); Dask retries a
+    build whose worker died (distributed.scheduler.allowed-failures times), then reports it failed."""
+    try:
+        from distributed import Client
+    except ImportError:
+        from fftool.errors import UsageError
+
+        raise UsageError("--scheduler needs Dask: pip install 'fftool[cluster]'") from None
+    with Client(address) as client:
+        yield client.get_executor(pure=False)
+
+
+def build_grid(
+    cells: Iterable[tuple[PipelineConfig, str]],
+    store: ArtifactStore,
+    device: str,
+    jobs: int,
+    threads: int | None = None,
+    address: str | None = None,
+) -> dict[Key, float]:
+    """Build every missing stage the cells need, `jobs` at a time on this machine or on the Dask cluster
+    at `address`; the seconds of each build. Raises one FftoolError naming what failed once all that
+    could be built is built (each failure, its reason and log, and what it held back are logged first)."""
+    from fftool.errors import FftoolError
+    from fftool.ui import log, warn
+
+    nodes = plan(cells)
+    per_job = threads_per_job(jobs, threads)
+    where = f"the Dask cluster at {address}" if address else f"{jobs} local worker processes"
+    todo = sum(store.lookup(*key) is None for key in nodes)
+    log(f"{todo} of {len(nodes)} stage builds to run on {where}, {per_job} torch thread(s) each")
+
+    def report(event: str, node: Node, detail: str) -> None:
+        if event == "failed":
+            warn(f"[red]failed[/] {node.label}: {detail} (log: {log_file(store.root, node)})")
+        else:
+            log(f"{event:>5} {node.label}" + (f" ({detail})" if detail else ""))
+
+    with dask_pool(address) if address else local_pool(jobs) as executor:
+        outcome = build_all(nodes, store, executor, device, per_job, report)
+    for key, needed in outcome.blocked.items():
+        warn(f"not built: {nodes[key].label} (it needs {needed}, which failed)")
+    if outcome.failed:
+        labels = ", ".join(nodes[key].label for key in outcome.failed)
+        raise FftoolError(
+            f"{len(outcome.failed)} of {todo} stage builds failed ({labels}) and {len(outcome.blocked)} were not "
+            f"built because of them; the {len(outcome.built)} others are in the store; run again to retry"
+        )
+    return outcome.built
