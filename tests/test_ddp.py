@@ -1,6 +1,8 @@
 """Data-parallel training (torchrun, docs/scaling.md): 2 gloo ranks on the CPU, on tiny synthetic data.
 
-Ranks are spawned processes with torchrun's environment (WORLD_SIZE, RANK, LOCAL_RANK, MASTER_ADDR/PORT).
+Ranks are forked processes with torchrun's environment (WORLD_SIZE, RANK, LOCAL_RANK, MASTER_ADDR/PORT):
+forked, they inherit the imported torch and fftool (spawned ranks re-import them, ~10 s each here); the
+parent never joins a process group.
 What "the same step" means: the global batch is the single-process batch. For the goal U-Net (order and
 augmentation drawn for the global batch) the 2-rank step is compared with today's single-process step.
 For the CVAE each rank draws its windows' rotations and latent samples from its own generator (seed +
@@ -79,7 +81,7 @@ def _as_rank(rank: int, port: int) -> None:
 def _spawn(target: Any, *args: Any, timeout: float = 120, grace: float | None = None) -> list[int | None]:
     """Run `target(rank, port, *args)` in WORLD spawned processes; their exit codes. With `grace`, the other
     ranks get that long once rank 0 has ended, then they are killed (a killed rank 0 leaves them waiting)."""
-    context = multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("fork")
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]

@@ -8,6 +8,7 @@ How an example maps to a run:
   epilog and help, from the first line starting with `Example:` or `Examples:`; an example is a line that
   starts with `fftool ` there, with a trailing `# comment` removed. An example shared by two commands
   (`reproduce` and `ablate` show the same ones) runs once.
+- A `torchrun ... -m fftool ...` line (a data-parallel run) is an example too.
 - They all run in ONE checkout (`make_checkout` of tests/doc_fixtures.py, as the doc tests use): the
   synthetic raw tree at `../shared/data/eth_ucy/raw` (the default `data.raw_dir`), a scene for zara1, and
   `pipelines/quick.toml` = the tiny profile under the quick profile's name, with the real quick
@@ -66,6 +67,10 @@ ORDER = [
     "fftool artifacts verify",
 ]
 
+_TORCHRUN = (
+    "starts two ranks that each import torch and fftool (half a minute on a 2-core machine); tests/test_ddp.py "
+    "runs the same path (pipeline.run with torchrun's environment, 2 gloo ranks) on the tiny data"
+)
 NOT_RUN = {
     "fftool fetch-data --dest data/eth_ucy/raw": "downloads from the internet; tests/test_fetch.py runs it against "
     "a local server, and the checkout's data/eth_ucy/raw holds the synthetic tree in its place",
@@ -73,6 +78,10 @@ NOT_RUN = {
     "test checkout has the quick profile only (the tiny one under its name), which the quick example runs",
     "fftool reproduce pipelines/paper.toml --device cuda": "the full paper configuration needs a GPU and "
     "hours; the test checkout has the quick profile only",
+    "torchrun --standalone --nproc-per-node 2 -m fftool train-goal --config pipelines/quick.toml": _TORCHRUN,
+    "torchrun --standalone --nproc-per-node 2 -m fftool train-cvae --variant dr --config pipelines/quick.toml": (
+        _TORCHRUN
+    ),
 }
 
 # Placeholder id in an example -> (kind, label) of the checkout's artifact whose real id replaces it.
@@ -95,7 +104,7 @@ def examples_in(text: str | None) -> list[str]:
     found = []
     for line in text[start.start() :].splitlines():
         line = re.sub(r"^\s*Examples?:", "", line).strip()
-        if line.startswith("fftool "):
+        if line.startswith(("fftool ", "torchrun ")):  # torchrun ... -m fftool: a data-parallel run
             found.append(COMMENT.sub("", line))
     return found
 
@@ -218,3 +227,6 @@ def test_examples_are_read_from_help_texts() -> None:
     assert examples_in(text) == ["fftool a --b 1", "fftool c"]
     assert examples_in("Example: fftool d x   # why") == ["fftool d x"]
     assert examples_in("fftool e, but no example marker") == []
+    assert examples_in("Example: torchrun --nproc-per-node 2 -m fftool f") == [
+        "torchrun --nproc-per-node 2 -m fftool f"
+    ]

@@ -130,7 +130,12 @@ def maps(
     out_console.print(maps_table(run_stages(["maps"], config, set_, root, force)["maps"]))
 
 
-@app.command("train-goal", epilog="Example: fftool train-goal --benchmarks zara1,zara2 --config pipelines/quick.toml")
+@app.command(
+    "train-goal",
+    epilog="Examples:\n\n  fftool train-goal --benchmarks zara1,zara2 --config pipelines/quick.toml\n\n"
+    "  torchrun --standalone --nproc-per-node 2 -m fftool train-goal --config pipelines/quick.toml"
+    "   # data-parallel, 2 ranks (docs/scaling.md)",
+)
 @boundary
 def train_goal(
     benchmarks: BenchmarksOption = "zara1",
@@ -175,7 +180,10 @@ def sample_goals(
 
 
 @app.command(
-    "train-cvae", epilog="Example: fftool train-cvae --benchmarks zara1 --variant dr --config pipelines/quick.toml"
+    "train-cvae",
+    epilog="Examples:\n\n  fftool train-cvae --benchmarks zara1 --variant dr --config pipelines/quick.toml\n\n"
+    "  torchrun --standalone --nproc-per-node 2 -m fftool train-cvae --variant dr --config pipelines/quick.toml"
+    "   # data-parallel, 2 ranks (docs/scaling.md)",
 )
 @boundary
 def train_cvae(
