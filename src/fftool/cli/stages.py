@@ -147,12 +147,14 @@ def train_goal(
     force: ForceOption = False,
 ) -> None:
     """Train the U-Net goal estimator on each benchmark's train part (resumable; best epoch by val goal-FDE)."""
+    from fftool.learning.distributed import leader
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
     for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
         built = run_stages(["goal"], config, set_, root, force, device, benchmark)
-        out_console.print(training_table(built["goal"], f"goal U-Net ({benchmark})"))
+        if leader():  # under torchrun, rank 0 alone prints
+            out_console.print(training_table(built["goal"], f"goal U-Net ({benchmark})"))
 
 
 @app.command(
@@ -204,12 +206,14 @@ def train_cvae(
     force: ForceOption = False,
 ) -> None:
     """Train the AgentFormer CVAE with a ForceFormer input variant (batched, resumable, best by val minADE)."""
+    from fftool.learning.distributed import leader
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
     for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
         built = run_stages(["cvae"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
-        out_console.print(training_table(built["cvae"], f"CVAE {variant} ({benchmark})"))
+        if leader():  # under torchrun, rank 0 alone prints
+            out_console.print(training_table(built["cvae"], f"CVAE {variant} ({benchmark})"))
 
 
 @app.command(
