@@ -8,6 +8,7 @@ from rich import box
 from rich.table import Table
 
 from fftool.artifacts.store import Artifact
+from fftool.dataset.scenes import BENCHMARKS
 
 
 def _benchmark_part_table(title: str, columns: tuple[str, ...], rows: list[tuple[str, str, list[str]]]) -> Table:
@@ -29,8 +30,10 @@ def _benchmark_part_table(title: str, columns: tuple[str, ...], rows: list[tuple
 def windows_summary_table(windows: Artifact) -> Table:
     """Per benchmark and part: windows, valid agent-windows, pedestrians and frames."""
     keys = ("windows", "agent_windows", "pedestrians", "frames", "candidate_windows")
+    names = sorted({r["benchmark"] for r in windows.manifest.stats["summary"]})
+    data = "ETH/UCY leave-one-out" if set(names) <= set(BENCHMARKS) else f"dataset {', '.join(names)}:"
     table = _benchmark_part_table(
-        f"ETH/UCY leave-one-out windows ({windows.id})",
+        f"{data} windows ({windows.id})",
         ("windows", "valid agent-windows", "pedestrians", "frames", "candidates"),
         [(r["benchmark"], r["part"], [f"{r[k]:,}" for k in keys]) for r in windows.manifest.stats["summary"]],
     )
