@@ -29,7 +29,7 @@ from fftool.dataset.scenes import BENCHMARKS
 
 @app.command(
     epilog="Examples:\n\n  fftool ingest --raw ../shared/data/eth_ucy/raw --root artifacts\n\n"
-    "  fftool ingest --dataset crowd/dataset.toml   # your own dataset (docs/data.md)"
+    "  fftool ingest --dataset crowd/dataset.toml --root artifacts-crowd   # your own dataset (docs/data.md)"
 )
 @boundary
 def ingest(
