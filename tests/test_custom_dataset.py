@@ -16,7 +16,7 @@ from fftool import pipeline
 from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import load_config
-from fftool.errors import FftoolError
+from fftool.errors import UsageError
 from fftool.science.crowd import simulate_crowd
 from tests.test_maps import MATRIX, make_scene
 from tests.test_reproduce import TINY_PIPELINE
@@ -88,7 +88,7 @@ def test_an_edited_file_rebuilds_and_the_benchmark_is_checked(crowd: Path, tmp_p
     test_csv = copy / "test.csv"
     test_csv.write_text(test_csv.read_text().replace(",0.", ",1.", 1))
     assert pipeline.resolve(cfg, ["windows"])[0].fingerprint != before  # content, not path, is hashed
-    with pytest.raises(FftoolError, match="needs a benchmark, one of crowd"):
+    with pytest.raises(UsageError, match="got benchmark 'zara1'; the data offers crowd"):
         pipeline.resolve(cfg, ["goal"], "zara1")
 
 

@@ -26,7 +26,7 @@ from typing import Any
 from fftool.artifacts.hashing import fingerprint
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import PipelineConfig, benchmark_names
-from fftool.errors import FftoolError
+from fftool.errors import FftoolError, UsageError
 from fftool.learning import distributed
 from fftool.stages import cvae, evaluate, forces, goal, goals, maps, tracks, windows
 from fftool.stages.contract import Stage, StageContext
@@ -81,8 +81,9 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
         params = stage.section(cfg).model_dump(mode="json")
         if stage.per_benchmark:
             offered = benchmark_names(cfg)
-            if benchmark not in offered:
-                raise FftoolError(f"stage {stage.name!r} needs a benchmark, one of {', '.join(offered)}")
+            if benchmark not in offered:  # a usage error: the command line or profile named it (exit 2)
+                given = "no benchmark" if benchmark is None else f"benchmark {benchmark!r}"
+                raise UsageError(f"stage {stage.name!r} got {given}; the data offers {', '.join(offered)}")
             params["benchmark"] = benchmark
         upstream = [resolved[name] for name in stage.inputs_for(cfg)]
         inputs = dict(_input_key(up, stage.reads(cfg).get(up.stage.name)) for up in upstream)
