@@ -224,19 +224,29 @@ def rasterise(cfg: MapsConfig, scenes_dir: Path, out_dir: Path) -> dict[str, Any
         if built is None:
             missing.append(scene)
             continue
-        raster, transform, images = built
-        np.save(out_dir / map_file(scene), raster)
-        _check_figure(scene, raster, images, transform, out_dir / map_check_file(scene))
-        transforms[scene] = transform
+        transforms[scene] = _save_scene(scene, built, out_dir)
+    warnings = [f"scene {s}: no reference.png + world_to_pixel.txt; its crops have no map" for s in missing]
+    return _finish(cfg, transforms, missing, warnings, out_dir)
+
+
+def _save_scene(
+    name: str, built: tuple[np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray]], out_dir: Path
+) -> dict[str, Any]:
+    """Write one scene's raster and check figure; its transform, for transforms.json."""
+    raster, transform, images = built
+    np.save(out_dir / map_file(name), raster)
+    _check_figure(name, raster, images, transform, out_dir / map_check_file(name))
+    return transform
+
+
+def _finish(
+    cfg: MapsConfig, transforms: dict[str, Any], missing: list[str], warnings: list[str], out_dir: Path
+) -> dict[str, Any]:
+    """transforms.json and the manifest stats, for the ETH/UCY scenes and a dataset's scene alike."""
     (out_dir / MAPS_TRANSFORMS_FILE).write_text(
         json.dumps({"scenes": transforms, "channels": channel_names(cfg)}, indent=2)
     )
-    return {
-        "scenes": transforms,
-        "channels": channel_names(cfg),
-        "without_geometry": missing,
-        "warnings": [f"scene {s}: no reference.png + world_to_pixel.txt; its crops have no map" for s in missing],
-    }
+    return {"scenes": transforms, "channels": channel_names(cfg), "without_geometry": missing, "warnings": warnings}
 
 
 def rasterise_dataset(cfg: MapsConfig, dataset_toml: Path, out_dir: Path) -> dict[str, Any]:
@@ -250,22 +260,13 @@ def rasterise_dataset(cfg: MapsConfig, dataset_toml: Path, out_dir: Path) -> dic
         image_path, homography_path = found
         pixel_to_world = read_homography(homography_path)
         image = cv2.cvtColor(read_image(image_path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-        raster, transform, images = build_from_image(SceneImage(image, np.linalg.inv(pixel_to_world)), None, cfg)
-        np.save(out_dir / map_file(dataset.name), raster)
-        _check_figure(dataset.name, raster, images, transform, out_dir / map_check_file(dataset.name))
-        transforms[dataset.name] = transform
-    (out_dir / MAPS_TRANSFORMS_FILE).write_text(
-        json.dumps({"scenes": transforms, "channels": channel_names(cfg)}, indent=2)
-    )
-    return {
-        "scenes": transforms,
-        "channels": channel_names(cfg),
-        "without_geometry": missing,
-        "warnings": [
-            f"dataset {s}: no scene_image + homography; goal crops get an all-zero map (goal variants still run)"
-            for s in missing
-        ],
-    }
+        built = build_from_image(SceneImage(image, np.linalg.inv(pixel_to_world)), None, cfg)
+        transforms[dataset.name] = _save_scene(dataset.name, built, out_dir)
+    warnings = [
+        f"dataset {s}: no scene_image + homography; goal crops get an all-zero map (goal variants still run)"
+        for s in missing
+    ]
+    return _finish(cfg, transforms, missing, warnings, out_dir)
 
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
