@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from fftool.artifacts.store import ArtifactStore
 from tests.doc_fixtures import ROOT, DocRun, code_blocks, doc_files, label, make_checkout, parse, stages_by_cell
 
 DOCUMENTS = {path: parse(path) for path in doc_files()}
@@ -124,11 +125,18 @@ def test_tutorial_step7_rebuilds_what_its_table_says(doc_runs: dict[Path, DocRun
         assert before.loc[unchanged, "artifact"] == after.loc[unchanged, "artifact"]
         assert before.loc[unchanged, metrics].tolist() == after.loc[unchanged, metrics].tolist()
     assert before.loc["re", "artifact"] != after.loc["re", "artifact"]
-    f_dr, f_re = ({p.parent.name: np.load(p) for p in artifacts.glob(f"forces/*/{n}.npy")} for n in ("f_dr", "f_re"))
-    assert len(f_dr) == 2, "steps 2 and 7 each built one forces artifact"
-    first, second = sorted(f_dr)
-    assert np.array_equal(f_dr[first], f_dr[second]), "sigma_m changed the driving force"
-    assert not np.array_equal(f_re[first], f_re[second]), "sigma_m did not change the repulsive force"
+    store = ArtifactStore(artifacts)
+    (changed,) = [a for a in store.list("forces") if a.manifest.params["sigma_m"] == 0.5]  # step 7's
+    (before,) = [  # step 2's: the same inputs and constants but sigma (step 9's crowd has other inputs)
+        a
+        for a in store.list("forces")
+        if a.manifest.sources == changed.manifest.sources
+        and a.manifest.params == changed.manifest.params | {"sigma_m": a.manifest.params["sigma_m"]}
+        and a.manifest.params["sigma_m"] != 0.5
+    ]
+    f_dr, f_re = ([np.load(a.file(f"{n}.npy")) for a in (before, changed)] for n in ("f_dr", "f_re"))
+    assert np.array_equal(*f_dr), "sigma_m changed the driving force"
+    assert not np.array_equal(*f_re), "sigma_m did not change the repulsive force"
 
 
 @needs_tutorial
