@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
@@ -96,7 +95,8 @@ def build_node(root: str, node: Node, device: str, threads: int) -> float:
     log_path = log_file(Path(root), node)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    with open(log_path, "a") as log, _redirected(log):
+    # stdout and stderr (rich's consoles follow them) into the build's log
+    with open(log_path, "a") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         pipeline.run(
             node.cfg,
             ArtifactStore(Path(root)),
@@ -106,17 +106,6 @@ def build_node(root: str, node: Node, device: str, threads: int) -> float:
             benchmark=node.benchmark,
         )
     return time.perf_counter() - started
-
-
-@contextlib.contextmanager
-def _redirected(stream: object) -> Iterator[None]:
-    """stdout and stderr (rich's consoles follow them) into `stream` while a worker builds."""
-    saved = sys.stdout, sys.stderr
-    sys.stdout = sys.stderr = stream  # type: ignore[assignment]
-    try:
-        yield
-    finally:
-        sys.stdout, sys.stderr = saved
 
 
 def build_all(
