@@ -63,18 +63,18 @@ def _constant_velocity(args: argparse.Namespace, store, profile: Path) -> tuple[
     """Validation minADE/minFDE@20 of the constant-velocity reference on the recipes' validation windows."""
     from fftool import pipeline
     from fftool.config import EvaluateConfig, load_config
+    from fftool.learning import cvae_model
     from fftool.learning.batches import load_scene_set
     from fftool.learning.protocols import constant_velocity
     from fftool.learning.training import generator
-    from fftool.stages import cvae
 
     cfg = load_config(profile, [], {"data.raw_dir": str(args.raw.resolve()), "cvae.val_max_windows": args.val_windows})
     built = pipeline.run(cfg, store, ["forces"])
     val = load_scene_set(built["windows"], built["forces"], args.benchmark, "val")
     noise, gen = EvaluateConfig(), generator(0, torch.device("cpu"))
-    return cvae.val_metrics(
+    return cvae_model.val_metrics(
         val,
-        cvae.val_windows(val, cfg.cvae),
+        cvae_model.val_windows(val, cfg.cvae),
         cfg.cvae,
         int(built["windows"].manifest.stats["obs_len"]),
         torch.device("cpu"),

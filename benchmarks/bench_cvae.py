@@ -27,7 +27,6 @@ def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
     from fftool.config import ForcesConfig
     from fftool.learning import cvae_model
     from fftool.learning.features import prepare
-    from fftool.stages import cvae
 
     torch.manual_seed(0)
     model = cvae_model.build_model(cfg).train()
@@ -36,7 +35,7 @@ def _throughput(scenes, cfg, plan, seconds: float) -> tuple[float, int]:
     agents, start = 0, time.perf_counter()
     for members in plan:
         prepared = prepare(scenes.batch(members), cfg.variant, 8, rotate=True, generator=gen)
-        loss = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, gen).total
+        loss = cvae_model.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, gen).total
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()

@@ -137,7 +137,7 @@ def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatc
     def step(members: np.ndarray) -> tuple[float, list[torch.Tensor]]:
         model.zero_grad()
         prepared = prepare(scenes.batch(members), cfg.variant, 8)
-        loss = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator()).total
+        loss = cvae_model.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator()).total
         loss.backward()
         return loss.item(), [p.grad.clone() for p in model.parameters()]
 
@@ -172,7 +172,7 @@ def test_bf16_precision_runs_products_in_bfloat16_and_keeps_losses_float32(input
         model = cvae_model.build_model(cfg)
         seen: set[torch.dtype] = set()
         model.decoder[0].ff[0].register_forward_hook(lambda module, args, out, seen=seen: seen.add(out.dtype))
-        parts = cvae.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator().manual_seed(0))
+        parts = cvae_model.training_loss(model, prepared, cfg, ForcesConfig(), 0.4, torch.Generator().manual_seed(0))
         parts.total.backward()
         assert seen == {torch.bfloat16 if precision == "bf16" else torch.float32}
         assert all(part.dtype == torch.float32 and torch.isfinite(part) for part in parts)

@@ -26,7 +26,7 @@ import torch
 from fftool import pipeline
 from fftool.artifacts.store import ArtifactStore
 from fftool.config import CVAEConfig, ForcesConfig, GoalConfig, GoalsConfig, load_config
-from fftool.learning import training
+from fftool.learning import cvae_model, training
 from fftool.learning.features import prepare
 from fftool.learning.training import epoch_seed, generator, lr_factor, optimizer_step
 from fftool.stages import cvae, goal
@@ -139,7 +139,7 @@ def test_the_first_step_of_two_ranks_is_the_single_process_step_on_their_union(r
 
     # the CVAE: one process, the union of both ranks' windows, each window's noise from its rank's generator
     reference = cvae._trainer(ONE_STEP, ForcesConfig(), "zara1", inputs["windows"], None, CPU)
-    plan, rng = cvae.epoch_plan(reference.train, ONE_STEP, 0, reference.per_epoch)
+    plan, rng = cvae_model.epoch_plan(reference.train, ONE_STEP, 0, reference.per_epoch)
     assert [len(members) for members in plan] == [8]
     batch = reference.train.batch(plan[0], ONE_STEP.max_agents, rng)
     total = torch.zeros(())
@@ -148,7 +148,7 @@ def test_the_first_step_of_two_ranks_is_the_single_process_step_on_their_union(r
         gen = generator(epoch_seed(ONE_STEP.seed, 0) + rank * 2**40, CPU)
         part = batch.map(lambda t, rows=rows: t[rows])
         prepared = prepare(part, "baseline", reference.obs_len, rotate=ONE_STEP.rotate, generator=gen)
-        parts = cvae.training_loss(reference.model, prepared, ONE_STEP, None, None, gen)
+        parts = cvae_model.training_loss(reference.model, prepared, ONE_STEP, None, None, gen)
         total = total + parts.total * len(rows) / len(plan[0])  # the global batch's mean over windows
     factor = lr_factor(ONE_STEP.schedule, 0, reference.first_steps[-1], ONE_STEP.warmup_fraction)
     optimizer_step(reference.model, reference.optimizer, total, ONE_STEP.lr * factor, ONE_STEP.grad_clip)

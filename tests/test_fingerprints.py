@@ -1,8 +1,14 @@
-"""Fingerprints follow what each stage reads: a parameter changes a stage's fingerprint exactly when the
-stage, or an upstream part it reads, depends on it (forces views included), for every stage and field."""
+"""Fingerprints follow what each stage declares it reads (STAGE.declare), and a build reads nothing else.
+
+The expectations are derived from the declarations (a cell's fingerprint depends on its declared keys and,
+through each upstream artifact it reads, on that artifact's keys or on the keys of the parts it reads); an
+independent perturbation of every configuration field then measures which of the DAG's 20 cells change.
+That builds read no undeclared key is enforced at run time (contract.ConfigView) and tested here too.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, get_args
 
@@ -12,10 +18,11 @@ from pydantic import BaseModel, ValidationError
 
 from fftool import pipeline
 from fftool.artifacts.schema import FORCES_ARRAYS
-from fftool.artifacts.store import ArtifactStore
+from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import PipelineConfig, load_config, predictor_config
-from fftool.learning.features import SAMPLING_READS, TRAINING_READS
+from fftool.stages.contract import Reads, Stage, StageContext, UndeclaredRead, allowed_keys
 from fftool.stages.forces import ARRAY_PARAMS
+from fftool.stages.goal import VALIDATION_SAMPLING
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "data" / "eth_ucy" / "scenes"
 # Every cell of the DAG: (label, predictor for evaluate cells or None, protocol, target stage).
@@ -23,11 +30,9 @@ CELLS = [(stage, None, "paper", stage) for stage in ("tracks", "windows", "force
 CELLS += [(f"cvae[{v}]", v, "paper", "cvae") for v in ("baseline", "goal", "dr", "re")]
 CELLS += [(f"evaluate[{p},{protocol}]", p, protocol, "evaluate")
           for p in ("cv", "baseline", "goal", "dr", "re") for protocol in ("paper", "oracle")]  # fmt: skip
-# Fields that choose a cell rather than configure one, and paths (raw files, and a dataset TOML's description
-# and files, enter by content hash: tests/test_custom_dataset.py checks that an edited file rebuilds).
-NOT_PARAMETERS = {
-    "cvae.variant", "evaluate.predictor", "evaluate.protocol", "data.raw_dir", "data.scenes_dir", "data.dataset",
-}  # fmt: skip
+# Fields that choose a cell rather than configure one (the variant, the predictor, the protocol); the paths
+# that say where raw files lie (Reads.locations) are left out as the declarations say.
+SELECTORS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol"}
 
 
 def _perturbed(section: BaseModel, name: str) -> Any:
@@ -55,12 +60,16 @@ def _perturbed(section: BaseModel, name: str) -> Any:
     raise AssertionError(f"no valid perturbation of {type(section).__name__}.{name}")
 
 
+def _locations(cfg: PipelineConfig) -> set[str]:
+    return {key for stage in pipeline.STAGES.values() for key in allowed_keys(cfg, stage.declare(cfg).locations)}
+
+
 def _fields(cfg: PipelineConfig) -> list[str]:
     return [
         f"{section}.{name}"
         for section in type(cfg).model_fields
         for name in type(getattr(cfg, section)).model_fields
-        if f"{section}.{name}" not in NOT_PARAMETERS
+        if f"{section}.{name}" not in SELECTORS | _locations(cfg)
     ]
 
 
@@ -71,42 +80,42 @@ def _with(cfg: PipelineConfig, dotted: str) -> PipelineConfig:
     return cfg.model_copy(update={section_name: changed})
 
 
+def _cell(cfg: PipelineConfig, predictor: str | None, protocol: str) -> PipelineConfig:
+    cell = cfg if predictor is None else predictor_config(cfg, predictor)
+    return cell.model_copy(update={"evaluate": cell.evaluate.model_copy(update={"protocol": protocol})})
+
+
 def _fingerprints(cfg: PipelineConfig) -> dict[str, str]:
-    found = {}
-    for label, predictor, protocol, target in CELLS:
-        cell = cfg if predictor is None else predictor_config(cfg, predictor)
-        cell = cell.model_copy(update={"evaluate": cell.evaluate.model_copy(update={"protocol": protocol})})
-        found[label] = pipeline.resolve(cell, [target], "zara1")[-1].fingerprint
-    return found
+    return {
+        label: pipeline.resolve(_cell(cfg, predictor, protocol), [target], "zara1")[-1].fingerprint
+        for label, predictor, protocol, target in CELLS
+    }
 
 
-def _forces_fields(arrays: tuple[str, ...]) -> set[str]:
-    return {f"forces.{name}" for array in arrays for name in ARRAY_PARAMS[array]}
+def _declared(cfg: PipelineConfig, target: str) -> set[str]:
+    """The keys `target`'s fingerprint depends on, by the declarations alone: its declared keys and, for each
+    upstream artifact it reads, that artifact's keys (read whole) or the keys of the parts it reads together
+    with what that artifact's own inputs depend on (a view hashes those too)."""
+    items = {item.stage.name: item for item in pipeline.resolve(cfg, [target], "zara1")}
+
+    def through_inputs(name: str) -> set[str]:
+        found: set[str] = set()
+        for upstream, parts in items[name].reads.artifacts.items():
+            if parts is None:
+                found |= keys(upstream)
+            else:
+                stage = items[upstream].stage
+                found |= {f"{stage.section}.{key}" for key in stage.view_keys(parts)} | through_inputs(upstream)
+        return found
+
+    def keys(name: str) -> set[str]:
+        return set(allowed_keys(cfg, items[name].reads.params)) | through_inputs(name)
+
+    return keys(target) - SELECTORS
 
 
 def _expected(cfg: PipelineConfig) -> dict[str, set[str]]:
-    """What each cell reads, written out: its own section and the sections (or force arrays) upstream."""
-
-    def section(name: str, *unread: str) -> set[str]:
-        return {f for f in _fields(cfg) if f.startswith(f"{name}.")} - {f"{name}.{u}" for u in unread}
-
-    reads = {"tracks": section("ingest")}
-    reads["windows"] = reads["tracks"] | section("windows")
-    reads["forces"] = reads["windows"] | section("forces")
-    reads["maps"] = section("maps")
-    reads["goal"] = reads["windows"] | reads["maps"] | section("goal")
-    reads["goals"] = reads["goal"] | section("goals")
-    for v in ("baseline", "goal", "dr", "re"):
-        reads[f"cvae[{v}]"] = reads["windows"] | section("cvae") | _forces_fields(TRAINING_READS[v])
-    evaluate = section("evaluate", "protocol", "cv_angle_std_deg", "cv_speed_std")
-    for protocol in ("paper", "oracle"):
-        reads[f"evaluate[cv,{protocol}]"] = reads["windows"] | section("evaluate", "protocol")
-        reads[f"evaluate[baseline,{protocol}]"] = reads["cvae[baseline]"] | evaluate
-        for v in ("goal", "dr", "re"):
-            goals = reads["goals"] if protocol != "oracle" else set()
-            sampling = _forces_fields(SAMPLING_READS[v])
-            reads[f"evaluate[{v},{protocol}]"] = reads[f"cvae[{v}]"] | goals | evaluate | sampling
-    return reads
+    return {label: _declared(_cell(cfg, predictor, protocol), target) for label, predictor, protocol, target in CELLS}
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +126,7 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> PipelineConfig:
     return load_config(None, [f"data.raw_dir={str(raw)!r}", f"data.scenes_dir={str(SCENES)!r}"])
 
 
-def test_every_stage_is_fingerprinted_on_what_it_reads(base: PipelineConfig) -> None:
+def test_every_stage_is_fingerprinted_on_what_it_declares(base: PipelineConfig) -> None:
     before = _fingerprints(base)
     changed: dict[str, set[str]] = {label: set() for label in before}
     for dotted in _fields(base):
@@ -128,9 +137,28 @@ def test_every_stage_is_fingerprinted_on_what_it_reads(base: PipelineConfig) -> 
     expected = _expected(base)
     for label in before:
         assert changed[label] == expected[label], (
-            f"{label}: changes with {sorted(changed[label] - expected[label])} it does not read, "
-            f"not with {sorted(expected[label] - changed[label])} it reads"
+            f"{label}: changes with {sorted(changed[label] - expected[label])} it does not declare, "
+            f"not with {sorted(expected[label] - changed[label])} it declares"
         )
+
+
+def test_the_declarations_say_what_the_stages_read(base: PipelineConfig) -> None:
+    """A few facts of the declarations, written out, so that the derived expectations cannot drift unseen."""
+    expected = _expected(base)
+    assert set(VALIDATION_SAMPLING) <= expected["goal"]  # validation's goal sampling picks the goal model
+    assert {"goals.seed", "goals.parts", "goals.cv_angle_std_deg"}.isdisjoint(expected["goal"])
+    assert not any(key.startswith("forces.") for key in expected["cvae[baseline]"] | expected["cvae[goal]"])
+    assert "forces.fov_deg" in expected["cvae[re]"] and "forces.fov_deg" not in expected["cvae[dr]"]
+    assert "evaluate.cv_angle_std_deg" in expected["evaluate[cv,paper]"]
+    assert "evaluate.cv_angle_std_deg" not in expected["evaluate[dr,paper]"]
+
+
+@pytest.mark.parametrize("dotted", VALIDATION_SAMPLING)
+def test_the_goal_model_is_fingerprinted_on_the_sampling_its_validation_uses(base: PipelineConfig, dotted: str) -> None:
+    """train-goal keeps the epoch with the best validation goal-FDE@K, drawn with these goals settings: a
+    goal model selected under other settings must not be reused (the bug of issue 24)."""
+    fp = lambda cfg: pipeline.resolve(cfg, ["goal"], "zara1")[-1].fingerprint  # noqa: E731
+    assert fp(_with(base, dotted)) != fp(base)
 
 
 def test_what_the_issue_named(base: PipelineConfig) -> None:
@@ -185,3 +213,39 @@ def test_each_forces_array_depends_on_the_constants_its_view_names(dotted: str, 
     after = _forces_arrays(crowd, tmp_path, *context, f"{dotted}={value!r}")
     changed = {array for array in before if not np.array_equal(before[array], after[array])}
     assert changed == {array for array, params in ARRAY_PARAMS.items() if name in params}
+
+
+def _speeds(cfg: Any, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """A stage that declares windows.obs_len but also reads windows.pred_len."""
+    return {"steps": cfg.windows.obs_len + cfg.windows.pred_len}
+
+
+def test_a_build_that_reads_an_undeclared_key_fails_and_leaves_nothing(
+    base: PipelineConfig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    declare = lambda cfg: Reads(params=("windows.obs_len",), artifacts={"windows": None})  # noqa: E731
+    stage = Stage("speeds", 1, "fftool speeds", "speeds", declare, _speeds)
+    monkeypatch.setitem(pipeline.STAGES, "speeds", stage)
+    store = ArtifactStore(tmp_path)
+    with pytest.raises(UndeclaredRead, match=r"'speeds' read windows\.pred_len, which its declaration"):
+        pipeline.run(base, store, ["speeds"])
+    assert not (tmp_path / "speeds").exists() and not list(tmp_path.glob(".incomplete/*"))
+    assert store.lookup("windows", pipeline.resolve(base, ["windows"])[-1].fingerprint) is not None
+    # declared, the same build runs, and the key it declared enters its fingerprint
+    both = ("windows.obs_len", "windows.pred_len")
+    declared = Stage("speeds", 1, "fftool speeds", "speeds", lambda cfg: Reads(both, {"windows": None}), _speeds)
+    monkeypatch.setitem(pipeline.STAGES, "speeds", declared)
+    assert pipeline.run(base, store, ["speeds"])["speeds"].manifest.stats["steps"] == 20
+    assert pipeline.resolve(base, ["speeds"])[-1].params == {"windows.obs_len": 8, "windows.pred_len": 12}
+
+
+def test_the_view_hands_whole_sections_parts_of_sections_and_nothing_else(base: PipelineConfig) -> None:
+    item = pipeline.resolve(predictor_config(base, "dr"), ["cvae"], "zara1")[-1]
+    view = item.config_view(base)
+    assert view.cvae is base.cvae  # declared whole: the section itself
+    assert view.forces.tau_s == base.forces.tau_s  # read through the forces[f_dr, speed0] view
+    assert set(view.forces.model_dump()) == ARRAY_PARAMS["f_dr"] | ARRAY_PARAMS["speed0"]
+    with pytest.raises(UndeclaredRead, match=r"forces\.fov_deg"):
+        _ = view.forces.fov_deg  # the repulsive force's constant: dr does not read it
+    with pytest.raises(UndeclaredRead, match=r"goal\.epochs"):
+        _ = view.goal.epochs

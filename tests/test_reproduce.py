@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.learning.batches import load_agent_windows
-from fftool.stages.evaluate import rescore
+from fftool.reporting.rescoring import rescore
 from tests.test_maps import make_scene
 
 TINY_PIPELINE = """

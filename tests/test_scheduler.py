@@ -98,7 +98,7 @@ def test_threads_share_the_cores() -> None:
 def test_shared_stages_are_planned_once(profile: Path) -> None:
     cfg = load_config(profile)
     grid = [(cell.cfg, cell.benchmark) for cell in ablation.cells(cfg, ["zara1"], ["dr"])]
-    nodes = scheduler.plan(grid)
+    nodes = scheduler.plan(grid).nodes
     assert sorted(stage for stage, _ in nodes) == sorted(
         ["tracks", "windows", "forces", "maps", "goal", "goals", "cvae", "cvae", "evaluate", "evaluate", "evaluate"]
     )

@@ -19,38 +19,28 @@ import numpy as np
 import pandas as pd
 import torch
 
-from fftool.artifacts.store import Artifact, ArtifactStore, check_schema, default_root
+from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import EvaluateConfig, GoalConfig, GoalsConfig
 from fftool.dataset.scenes import PRED_LEN
 from fftool.dataset.steps import observed_windows, prediction_steps, to_steps
 from fftool.errors import FftoolError, UsageError
-from fftool.learning import goal_model
+from fftool.learning import devices, goal_model
 from fftool.learning.batches import SceneMaps
 from fftool.learning.cvae_model import Trained, load_model
 from fftool.learning.observed import padded_batch, scene_set
-from fftool.learning.sampling import Predictor, plan_batches, sample_batches
+from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
 from fftool.learning.training import generator
-
-GOAL_VARIANTS = ("goal", "dr", "re")
-
-
-def _device(name: str | torch.device) -> torch.device:
-    device = torch.device(name)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise UsageError("device cuda was asked for, but torch sees no CUDA device; use cpu")
-    return device
+from fftool.paper import reads_goal
 
 
-def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> Artifact:
-    """An artifact of `kind` by id (`cvae/3f9c2a`, under `root` or the default root) or by its folder."""
-    folder = Path(ref)
-    if folder.is_dir() and (folder / "manifest.json").is_file():
-        artifact = ArtifactStore(folder.resolve().parent.parent).resolve(f"{folder.parent.name}/{folder.name}")
-    else:
-        artifact = ArtifactStore(root or default_root()).resolve(str(ref))
+def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> tuple[ArtifactStore, Artifact]:
+    """An artifact of `kind` by id (`cvae/3f9c2a`, under `root` or the default root) or by its folder, checked
+    to be that kind at the schema version this fftool reads; with its store."""
+    store, artifact = ArtifactStore.open(ref, root)
     if artifact.kind != kind:
         raise UsageError(f"{ref}: a {artifact.kind} artifact, expected a {kind} artifact")
-    return artifact
+    check_schema(artifact, kind)
+    return store, artifact
 
 
 @dataclass(frozen=True)
@@ -89,7 +79,7 @@ class Model:
                 f"expected past (B, A, {self.obs_len}, 2) and agent_mask (B, A), got {past.shape} and {mask.shape}"
             )
         batch = padded_batch(past, mask, self.pred_len, self.trained.forces_config, self.trained.dt_s).to(self.device)
-        if self.variant not in GOAL_VARIANTS:
+        if not reads_goal(self.variant):
             predictor = self.predictor(k, seed)
             goals_k = predictor.goals(batch, np.zeros(mask.shape, np.int64))
         elif goals is None:
@@ -105,11 +95,9 @@ class Model:
 
 def load(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> Model:
     """A trained CVAE from its artifact id (`cvae/3f9c2a`) or folder, on `device` (cpu, cuda)."""
-    artifact = find_artifact(ref, "cvae", root)
-    check_schema(artifact, "cvae", artifact.manifest.schema_version, "fftool train-cvae")
-    chosen = _device(device)
+    store, artifact = find_artifact(ref, "cvae", root)
+    chosen = devices.resolve(device)
     trained = load_model(artifact, chosen)
-    store = ArtifactStore(artifact.path.parent.parent)
     windows = [a for a in store.chain(artifact) if isinstance(a, Artifact) and a.kind == "windows"]
     stats = windows[0].manifest.stats if windows else {"obs_len": 8, "pred_len": PRED_LEN}
     return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen)
@@ -138,8 +126,8 @@ class GoalSampler:
 
 def load_goal_sampler(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> GoalSampler:
     """A trained goal U-Net from its artifact id (`goal/3f9c2a`) or folder."""
-    artifact = find_artifact(ref, "goal", root)
-    net, cfg = goal_model.load_model(artifact, _device(device))
+    _, artifact = find_artifact(ref, "goal", root)
+    net, cfg = goal_model.load_model(artifact, devices.resolve(device))
     first = next(module for module in net.modules() if isinstance(module, torch.nn.Conv2d))
     return GoalSampler(net, cfg, first.in_channels)
 
@@ -171,7 +159,7 @@ def predict_tracks(
     labels = steps.labels[found.agent]
     predictor = model.predictor(k, seed)
     goals_of = predictor.goals
-    if model.variant in GOAL_VARIANTS:
+    if reads_goal(model.variant):
         if goal_sampler is not None:
             sampled = goal_sampler.sample(found.xy, k, seed, model.pred_len, model.device)
             predictor = model.predictor(k, seed, "fair", sampled)
@@ -188,14 +176,11 @@ def predict_tracks(
         else:
             raise UsageError(f"the {model.variant} variant steers toward goals: give goals or a goal U-Net")
     plan = plan_batches(scenes, predictor.cfg)
-    parts: dict[str, list[np.ndarray]] = {"row": [], "goal": [], "pred": []}
-    for batch, goals_k, futures in sample_batches(predictor, scenes, plan, goals_of, model.device):
-        mask = batch.agent_mask.cpu().numpy()
-        parts["row"].append(batch.row.cpu().numpy()[mask])
-        parts["goal"].append(goals_k.transpose(1, 2).cpu().numpy()[mask])  # (m, K, 2)
-        parts["pred"].append(futures.transpose(1, 2).cpu().numpy()[mask])  # (m, K, T, 2)
-    order = np.argsort(np.concatenate(parts["row"]))
-    goal, pred = np.concatenate(parts["goal"])[order], np.concatenate(parts["pred"])[order]
+    columns = collect(
+        sample_batches(predictor, scenes, plan, goals_of, model.device),
+        lambda batch, goals_k, futures: {"goal": goals_k.transpose(1, 2), "pred": futures.transpose(1, 2)},
+    )
+    goal, pred = columns["goal"], columns["pred"]  # (m, K, 2), (m, K, T, 2)
     return _table(steps.time_of(found.t0_step[found.window]), labels, goal, pred), steps.warnings
 
 

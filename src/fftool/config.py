@@ -27,6 +27,8 @@ else:  # pragma: no cover - exercised on 3.10 only
     import tomli as tomllib
 
 DEFAULT_RAW_DIR = "../shared/data/eth_ucy/raw"
+# --device: how to run, never part of a fingerprint (learning.devices.resolve turns one into a torch device).
+DEVICE_CHOICES: Final = ("auto", "cpu", "cuda")
 DEFAULT_SCENES_DIR = "../shared/data/eth_ucy/scenes"
 
 

@@ -16,6 +16,12 @@ FORCEFORMER_VARIANTS: Final[tuple[ForceFormerVariant, ...]] = get_args(ForceForm
 VARIANTS: Final[tuple[Variant, ...]] = get_args(Variant)
 PREDICTORS: Final[tuple[str, ...]] = ("cv", *VARIANTS)  # what `evaluate` scores, in the row order of every table
 
+
+def reads_goal(predictor: str) -> bool:
+    """Whether a predictor steers toward a goal: the ForceFormer variants do; cv and the baseline do not."""
+    return predictor in FORCEFORMER_VARIANTS
+
+
 PAPER_NAMES: Final = {
     "cv": "constant velocity",
     "baseline": "AgentFormer",

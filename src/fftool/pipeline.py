@@ -7,11 +7,13 @@
     windows + forces ──▶ cvae (per benchmark and variant)
     windows + forces (+ cvae, + goals, as the predictor needs) ──▶ evaluate (per benchmark)
 
-Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it computes
-fingerprint(stage, VERSION, its config section, upstream fingerprints or raw-file hashes), skips the
-stage when `<root>/<stage>/<fp[:16]>/` holds a complete artifact, and builds it atomically otherwise.
-Each stage module declares itself (`STAGE`, fftool.stages.contract); this engine holds no per-stage code
-and is the only module that knows every stage. Stages never import each other.
+Worked example: `run(cfg, store, ["windows"])` plans `[tracks, windows]`; for each stage it asks the
+declaration (`STAGE.declare(cfg)`, a `Reads`) what the build reads, computes fingerprint(stage, version,
+the declared parameters, upstream fingerprints (or views of them) and raw-file hashes), skips the stage
+when `<root>/<stage>/<fp[:16]>/` holds a complete artifact, and otherwise builds it atomically, handing
+`build` a configuration view that refuses every key it did not declare. Each stage module declares itself
+(fftool.stages.contract); this engine holds no per-stage code and is the only module that knows every
+stage. Stages never import each other.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from fftool.config import PipelineConfig, benchmark_names
 from fftool.errors import FftoolError, UsageError
 from fftool.learning import distributed
 from fftool.stages import cvae, evaluate, forces, goal, goals, maps, tracks, windows
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import ConfigView, Reads, Stage, StageContext, allowed_keys
 from fftool.ui import log, progress, warn
 
 
@@ -45,64 +47,108 @@ STAGES: dict[str, Stage] = {
 }
 
 
-def plan(targets: Iterable[str], cfg: PipelineConfig | None = None) -> list[Stage]:
-    """Stages needed for `targets` (under `cfg`, when inputs depend on it), upstream first, each once."""
-    ordered: list[Stage] = []
-
-    def visit(name: str) -> None:
-        if name not in STAGES:
-            raise FftoolError(f"unknown stage {name!r}; stages: {', '.join(STAGES)}")
-        stage = STAGES[name]
-        for upstream in stage.inputs_for(cfg):
-            visit(upstream)
-        if stage not in ordered:
-            ordered.append(stage)
-
-    for target in targets:
-        visit(target)
-    return ordered
-
-
 @dataclass(frozen=True)
 class Resolved:
-    """A planned stage with everything its fingerprint is made of."""
+    """A planned stage build with everything its fingerprint is made of, all from its declaration."""
 
     stage: Stage
-    params: dict[str, Any]
+    reads: Reads  # what the build reads (STAGE.declare)
+    params: dict[str, Any]  # the declared configuration values (and the benchmark), as hashed
     inputs: dict[str, str]  # what the fingerprint hashes: upstream stage (or view of it) -> fp, raw file -> sha256
     sources: dict[str, str]  # the upstream artifacts it is built from: stage -> full fingerprint
+    allowed: frozenset[str]  # the "section.key"s the build may read: declared, or hashed through an upstream view
     fingerprint: str
+    benchmark: str | None
+
+    @property
+    def command_line(self) -> str:
+        return self.stage.command_line(self.reads, self.benchmark)
+
+    @property
+    def description(self) -> str:
+        return self.stage.describe(self.reads, self.benchmark)
+
+    def config_view(self, cfg: PipelineConfig) -> ConfigView:
+        """The configuration `build` gets: the keys this build declared, and no other."""
+        return ConfigView(cfg, self.allowed, self.stage.name)
+
+
+def _stage(name: str) -> Stage:
+    if name not in STAGES:
+        raise FftoolError(f"unknown stage {name!r}; stages: {', '.join(STAGES)}")
+    return STAGES[name]
 
 
 def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None = None) -> list[Resolved]:
-    """Plan `targets` and fingerprint each stage; upstream fingerprints chain into downstream ones."""
+    """The builds `targets` need under `cfg`, upstream first, each once, each fingerprinted from its
+    declaration: its parameters, and its upstream fingerprints (or views of them) and raw-file hashes."""
     resolved: dict[str, Resolved] = {}
-    for stage in plan(targets, cfg):
-        params = stage.section(cfg).model_dump(mode="json")
+
+    def visit(name: str) -> None:
+        if name in resolved:
+            return
+        stage = _stage(name)
+        reads = stage.declare(cfg)
+        for upstream in reads.artifacts:
+            visit(upstream)
+        params = _record(cfg, stage, reads)
         if stage.per_benchmark:
             offered = benchmark_names(cfg)
             if benchmark not in offered:  # a usage error: the command line or profile named it (exit 2)
                 given = "no benchmark" if benchmark is None else f"benchmark {benchmark!r}"
                 raise UsageError(f"stage {stage.name!r} got {given}; the data offers {', '.join(offered)}")
             params["benchmark"] = benchmark
-        upstream = [resolved[name] for name in stage.inputs_for(cfg)]
-        inputs = dict(_input_key(up, stage.reads(cfg).get(up.stage.name)) for up in upstream)
-        inputs |= stage.external_inputs(cfg)
-        sources = {up.stage.name: up.fingerprint for up in upstream}
+        ups = {up: resolved[up] for up in reads.artifacts}
+        inputs = dict(_input_key(ups[up], parts) for up, parts in reads.artifacts.items()) | dict(reads.raw_files)
+        allowed = allowed_keys(cfg, reads.params) | allowed_keys(cfg, reads.locations)
+        for up, parts in reads.artifacts.items():
+            if parts is not None and ups[up].stage.section:
+                allowed |= {f"{ups[up].stage.section}.{key}" for key in ups[up].stage.view_keys(parts)}
+        sources = {up: item.fingerprint for up, item in ups.items()}
         fp = fingerprint(stage.name, stage.version, params, inputs)
-        resolved[stage.name] = Resolved(stage, params, inputs, sources, fp)
+        where = benchmark if stage.per_benchmark else None
+        resolved[name] = Resolved(stage, reads, params, inputs, sources, allowed, fp, where)
+
+    for target in targets:
+        visit(target)
     return list(resolved.values())
+
+
+def _record(cfg: PipelineConfig, stage: Stage, reads: Reads) -> dict[str, Any]:
+    """The declared configuration values as the fingerprint hashes them (Reads.params): the stage's own
+    section under bare names, its keys the build does not read at their defaults; other keys as section.key."""
+    declared = allowed_keys(cfg, reads.params)
+    record: dict[str, Any] = {}
+    if stage.section is not None:
+        section = getattr(cfg, stage.section)
+        defaults = type(section)().model_dump(mode="json")
+        values = section.model_dump(mode="json")
+        record = {key: values[key] if f"{stage.section}.{key}" in declared else defaults[key] for key in values}
+    for dotted in sorted(declared):
+        name, key = dotted.split(".")
+        if name != stage.section:
+            record[dotted] = getattr(cfg, name).model_dump(mode="json")[key]
+    return record
 
 
 def _input_key(upstream: Resolved, parts: tuple[str, ...] | None) -> tuple[str, str]:
     """How a consumer's fingerprint names an upstream artifact: by its fingerprint, or, when the consumer
-    reads only some parts of it (`Stage.reads`), by a fingerprint of the parameters those parts depend on
-    (`Stage.view`), so `forces.fov_deg` reaches the models that read the repulsive force and no other."""
+    reads only some parts of it, by a fingerprint of the parameters those parts depend on, so
+    `forces.fov_deg` reaches the models that read the repulsive force and no other."""
     stage = upstream.stage
-    if parts is None or stage.view is None:
+    if parts is None:
         return stage.name, upstream.fingerprint
-    view = fingerprint(stage.name, stage.version, stage.view(upstream.params, parts), upstream.inputs)
-    return f"{stage.name}[{','.join(sorted(parts))}]", view
+    keys = stage.view_keys(parts)
+    view = {key: value for key, value in upstream.params.items() if key in keys}
+    return f"{stage.name}[{','.join(sorted(parts))}]", fingerprint(stage.name, stage.version, view, upstream.inputs)
+
+
+class Built(dict[str, Artifact]):
+    """What `run` made or found, stage -> artifact, and `new`: the stages it built now, with their seconds."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.new: dict[str, float] = {}
 
 
 def run(
@@ -113,34 +159,36 @@ def run(
     runtime: Runtime | None = None,
     upstream: bool = True,
     benchmark: str | None = None,
-) -> dict[str, Artifact]:
+) -> Built:
     """Build what is missing for `targets` (and rebuild the stages named in `force`).
 
     With `upstream=False` (a single stage's command) the stages before the targets are not built:
     their artifacts must exist, else the error names the command that makes them.
     """
-    forced, targets = set(force), list(targets)
-    built: dict[str, Artifact] = {}
+    forced, targets, runtime = set(force), list(targets), runtime or Runtime()
+    built = Built()
     for item in resolve(cfg, targets, benchmark):
         stage, fp = item.stage, item.fingerprint
         if not upstream and stage.name not in targets:
-            built[stage.name] = store.require(stage.name, fp, stage.version, stage.command_line(cfg, benchmark))
+            built[stage.name] = store.require(stage.name, fp, stage.version, item.command_line)
             continue
         if stage.distributed and not distributed.leader():  # a torchrun rank > 0: rank 0 decides and installs
-            built[stage.name] = _follow(cfg, store, item, built, runtime or Runtime(), benchmark)
+            built[stage.name] = _follow(cfg, store, item, built, runtime)
             continue
         existing = None if stage.name in forced else _cached(store, stage, fp)
         if existing is not None and stage.name in targets:  # the caller reads it: check its bytes first
-            store.check_inputs({stage.name: existing}, {stage.name: stage.command})
+            store.check_inputs({stage.name: existing})
         if existing is None:
             with store.lock(stage.name, fp):  # another process may have built it while we waited
                 existing = None if stage.name in forced else _cached(store, stage, fp)
                 if existing is None:
-                    existing = _build(cfg, store, item, built, runtime or Runtime(), benchmark)
+                    started = time.perf_counter()
+                    existing = _build(cfg, store, item, built, runtime)
+                    built.new[stage.name] = time.perf_counter() - started
                 else:
-                    _announce(stage, runtime or Runtime(), None)
+                    _announce(stage, runtime, None)
         else:
-            _announce(stage, runtime or Runtime(), None)
+            _announce(stage, runtime, None)
         built[stage.name] = existing
     return built
 
@@ -159,14 +207,14 @@ def _build(
     item: Resolved,
     built: Mapping[str, Artifact],
     runtime: Runtime,
-    benchmark: str | None,
 ) -> Artifact:
-    """Build one stage from verified inputs (their files are re-hashed first; the time it takes is recorded)."""
+    """Build one stage from verified inputs (their files are re-hashed first; the time it takes is recorded),
+    handing it the configuration view of its declaration."""
     stage, fp = item.stage, item.fingerprint
     log(f"stage {stage.name!r}: building (fp {fp[:12]}…)")
-    inputs = {name: built[name] for name in stage.inputs_for(cfg)}
+    inputs = {name: built[name] for name in item.reads.artifacts}
     started = time.perf_counter()
-    store.check_inputs(inputs, {name: STAGES[name].command for name in inputs})
+    store.check_inputs(inputs)
     checked_s = time.perf_counter() - started
     with (
         store.build(
@@ -174,17 +222,17 @@ def _build(
         ) as built_ctx,
         progress() as bar,
     ):
-        task = bar.add_task(stage.description(cfg, benchmark), total=None)
+        task = bar.add_task(item.description, total=None)
         ctx = StageContext(
             out_dir=built_ctx.dir,
             scratch=built_ctx.scratch,
-            benchmark=benchmark,
+            benchmark=item.benchmark,
             device_name=runtime.device,
             on_progress=lambda phase, done, total: bar.update(task, completed=done, total=total, description=phase),
             on_epoch=lambda row: bar.console.print("  " + "  ".join(_cell(k, v) for k, v in row.items())),
         )
         _announce(stage, runtime, built_ctx.scratch)
-        stats = stage.build(cfg, inputs, ctx)
+        stats = stage.build(item.config_view(cfg), inputs, ctx)
         for message in stats.get("warnings", []):  # a stage's warnings stay in its manifest too
             warn(message)
         build_s = time.perf_counter() - started - checked_s
@@ -210,7 +258,6 @@ def _follow(
     item: Resolved,
     built: Mapping[str, Artifact],
     runtime: Runtime,
-    benchmark: str | None,
 ) -> Artifact:
     """A data-parallel stage on a torchrun rank other than 0: train beside rank 0, which alone takes the lock,
     writes checkpoints and logs and installs, into a throwaway folder; then read what rank 0 installed."""
@@ -218,12 +265,12 @@ def _follow(
     distributed.join(runtime.device)
     scratch = distributed.broadcast(None)
     if scratch is not None:
-        inputs = {name: built[name] for name in stage.inputs_for(cfg)}
+        inputs = {name: built[name] for name in item.reads.artifacts}
         with tempfile.TemporaryDirectory(prefix=f"fftool-rank{distributed.rank()}-") as tmp:
-            ctx = StageContext(Path(tmp), Path(scratch), benchmark, runtime.device)
-            stage.build(cfg, inputs, ctx)
+            ctx = StageContext(Path(tmp), Path(scratch), item.benchmark, runtime.device)
+            stage.build(item.config_view(cfg), inputs, ctx)
         distributed.barrier()  # rank 0 has installed the artifact
-    return store.require(stage.name, item.fingerprint, stage.version, stage.command_line(cfg, benchmark))
+    return store.require(stage.name, item.fingerprint, stage.version, item.command_line)
 
 
 def _cell(key: str, value: Any) -> str:

@@ -39,26 +39,34 @@ class Node:
     cfg: PipelineConfig
     benchmark: str | None
     needs: frozenset[Key]
+    label: str  # what the progress bar and messages call it
 
     @property
     def key(self) -> Key:
         return self.stage, self.fingerprint
 
-    @property
-    def label(self) -> str:
-        return pipeline.STAGES[self.stage].description(self.cfg, self.benchmark)
+
+@dataclass(frozen=True)
+class Plan:
+    """Every stage build a grid needs, once each, and each cell's builds (in the order the cells were given)."""
+
+    nodes: dict[Key, Node]
+    cells: list[list[Key]]
 
 
-def plan(cells: Iterable[tuple[PipelineConfig, str]], target: str = "evaluate") -> dict[Key, Node]:
+def plan(cells: Iterable[tuple[PipelineConfig, str]], target: str = "evaluate") -> Plan:
     """Every stage build the cells' `target`s need, once each, with the builds each one reads."""
     nodes: dict[Key, Node] = {}
+    per_cell = []
     for cfg, benchmark in cells:
+        keys = []
         for item in pipeline.resolve(cfg, [target], benchmark):
-            needs = frozenset(item.sources.items())
             key = (item.stage.name, item.fingerprint)
-            where = benchmark if item.stage.per_benchmark else None
-            nodes.setdefault(key, Node(item.stage.name, item.fingerprint, cfg, where, needs))
-    return nodes
+            needs = frozenset(item.sources.items())
+            nodes.setdefault(key, Node(*key, cfg, item.benchmark, needs, item.description))
+            keys.append(key)
+        per_cell.append(keys)
+    return Plan(nodes, per_cell)
 
 
 @dataclass
@@ -192,14 +200,16 @@ def build_grid(
     jobs: int,
     threads: int | None = None,
     address: str | None = None,
-) -> dict[Key, float]:
+) -> list[dict[Key, float]]:
     """Build every missing stage the cells need, `jobs` at a time on this machine or on the Dask cluster
-    at `address`; the seconds of each build. Raises one FftoolError naming what failed once all that
-    could be built is built (each failure, its reason and log, and what it held back are logged first)."""
+    at `address`; per cell, the builds it was first to need and their seconds. Raises one FftoolError naming
+    what failed once all that could be built is built (each failure, its reason and log, and what it held
+    back are logged first)."""
     from fftool.errors import FftoolError
     from fftool.ui import log, warn
 
-    nodes = plan(cells)
+    grid = plan(cells)
+    nodes = grid.nodes
     per_job = threads_per_job(jobs, threads)
     where = f"the Dask cluster at {address}" if address else f"{jobs} local worker processes"
     todo = sum(store.lookup(*key) is None for key in nodes)
@@ -221,4 +231,9 @@ def build_grid(
             f"{len(outcome.failed)} of {todo} stage builds failed ({labels}) and {len(outcome.blocked)} were not "
             f"built because of them; the {len(outcome.built)} others are in the store; run again to retry"
         )
-    return outcome.built
+    claimed: set[Key] = set()
+    per_cell = []
+    for keys in grid.cells:
+        per_cell.append({key: outcome.built[key] for key in keys if key in outcome.built and key not in claimed})
+        claimed.update(keys)
+    return per_cell

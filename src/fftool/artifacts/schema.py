@@ -1,4 +1,5 @@
-"""Column names and Arrow schemas of every tabular artifact: the contract between stages.
+"""Every artifact kind's schema version, the command that makes it, its file names and Arrow schemas: the
+contract between stages, and between the store's writers and every reader (stages, `predict`, the API).
 
 Stages never import each other; they agree on these names and file names instead.
 """
@@ -9,7 +10,29 @@ from typing import Final
 
 import pyarrow as pa
 
-from fftool.dataset.scenes import WINDOW_LEN
+# The schema version of each artifact kind: a reader refuses an artifact written under another one
+# (store.check_schema). forces 2: the time step is recorded (dt_s); 3: windows centred on a valid agent.
+VERSIONS: Final[dict[str, int]] = {
+    "tracks": 1,
+    "windows": 1,
+    "forces": 3,
+    "maps": 1,
+    "goal": 1,
+    "goals": 1,
+    "cvae": 1,
+    "evaluate": 1,
+}
+# The command that makes each kind, for messages that tell a user how to (re)build one.
+COMMANDS: Final[dict[str, str]] = {
+    "tracks": "fftool ingest",
+    "windows": "fftool ingest",
+    "forces": "fftool forces",
+    "maps": "fftool maps",
+    "goal": "fftool train-goal",
+    "goals": "fftool sample-goals",
+    "cvae": "fftool train-cvae",
+    "evaluate": "fftool evaluate",
+}
 
 # --- tracks artifact ------------------------------------------------------------------------------
 TRACKS_FILE: Final = "tracks.parquet"
@@ -27,7 +50,7 @@ TRACKS_SCHEMA: Final = pa.schema(
 
 # --- windows artifact -----------------------------------------------------------------------------
 # windows.parquet: one row per window (a current frame t0 with at least one valid agent) of each
-# benchmark part. The window covers steps first_step .. first_step + WINDOW_LEN - 1 of the raw file
+# benchmark part. The window covers steps first_step .. first_step + window_len - 1 of the raw file
 # (source, split); t0_step = first_step + obs_len - 1 is the last observed step. Every pedestrian
 # present at a step of the window (the neighbours) is found in tracks by (source, split, step).
 WINDOWS_FILE: Final = "windows.parquet"
@@ -46,12 +69,12 @@ WINDOWS_SCHEMA: Final = pa.schema(
     ]
 )
 
-# agent_windows.parquet: one row per valid agent-window, positions at all WINDOW_LEN steps,
+# agent_windows.parquet: one row per valid agent-window, positions at all window_len steps,
 # laid out step-major: xy[2*t], xy[2*t + 1] = x, y at step first_step + t.
 AGENT_WINDOWS_FILE: Final = "agent_windows.parquet"
 
 
-def agent_windows_schema(window_len: int = WINDOW_LEN) -> pa.Schema:
+def agent_windows_schema(window_len: int) -> pa.Schema:
     return pa.schema(
         [
             pa.field("benchmark", pa.dictionary(pa.int8(), pa.string()), nullable=False),

@@ -28,6 +28,7 @@ from filelock import FileLock, Timeout
 
 from fftool import __version__
 from fftool.artifacts.hashing import sha256_file
+from fftool.artifacts.schema import COMMANDS, VERSIONS
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 from fftool.ui import log, warn
 
@@ -288,6 +289,18 @@ class ArtifactStore:
             )
         return matches[0]
 
+    @classmethod
+    def open(cls, ref: str | Path, root: Path | None = None) -> tuple[ArtifactStore, Artifact]:
+        """An artifact by id (`cvae/3f9c2a`, under `root` or the default root) or by its folder (in the store
+        that holds the folder), with its store."""
+        folder = Path(ref)
+        if folder.is_dir() and (folder / MANIFEST).is_file():
+            folder = folder.resolve()
+            store = cls(folder.parent.parent)
+            return store, store.resolve(f"{folder.parent.name}/{folder.name}")
+        store = cls(root or default_root())
+        return store, store.resolve(str(ref))
+
     def require(self, kind: str, fp: str, schema_version: int, made_by: str) -> Artifact:
         """The artifact a stage reads; a clear error naming the command that makes it otherwise."""
         artifact = self.lookup(kind, fp)
@@ -314,10 +327,11 @@ class ArtifactStore:
         problems.extend(f"{name}: not listed in the manifest" for name in on_disk)
         return problems
 
-    def check_inputs(self, artifacts: Mapping[str, Artifact], made_by: Mapping[str, str]) -> None:
+    def check_inputs(self, artifacts: Mapping[str, Artifact], made_by: Mapping[str, str] = COMMANDS) -> None:
         """Refuse to build from (or read) artifacts whose files changed since they were built.
 
-        `made_by` names the command that rebuilds each input; the error names the artifact and the file.
+        `made_by` names the command that rebuilds each input (default: its kind's, schema.COMMANDS); the error
+        names the artifact and the file.
         """
         for name, artifact in artifacts.items():
             problems = self.verify(artifact)
@@ -473,8 +487,11 @@ class BuildContext:
     artifact: Artifact | None = None
 
 
-def check_schema(artifact: Artifact, kind: str, schema_version: int, made_by: str) -> None:
-    """Fail clearly when an artifact is not the kind or schema version a reader expects."""
+def check_schema(artifact: Artifact, kind: str, schema_version: int | None = None, made_by: str | None = None) -> None:
+    """Fail clearly when an artifact is not the kind or schema version a reader expects: by default the
+    version this fftool writes (schema.VERSIONS), whoever reads it (stages, `predict`, the API)."""
+    schema_version = VERSIONS[kind] if schema_version is None else schema_version
+    made_by = made_by or COMMANDS.get(kind, "fftool")
     if artifact.kind != kind:
         raise SchemaError(f"artifact {artifact.id} is a {artifact.kind!r} artifact, expected {kind!r}")
     if artifact.manifest.schema_version != schema_version:

@@ -67,6 +67,27 @@ app = typer.Typer(
 )
 
 
+def _print_version(asked: bool) -> None:
+    if asked:
+        from fftool import __version__
+
+        typer.echo(f"fftool {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", help="Print fftool's version and exit.", callback=_print_version, is_eager=True),
+    ] = False,
+) -> None:
+    """ForceFormer pedestrian-trajectory prediction, reproducible: one command per pipeline stage.
+
+    Example: fftool ingest --raw ../shared/data/eth_ucy/raw
+    """
+
+
 RootOption = Annotated[
     Path | None,
     typer.Option("--root", help="Artifact root. Default: $FFTOOL_ARTIFACTS or ./artifacts.", show_default=False),
@@ -178,8 +199,10 @@ def build_stages(
 
 
 def check_device(value: str) -> str:
-    if value not in ("auto", "cpu", "cuda"):
-        raise typer.BadParameter(f"{value!r} is not one of auto, cpu, cuda")
+    from fftool.config import DEVICE_CHOICES
+
+    if value not in DEVICE_CHOICES:
+        raise typer.BadParameter(f"{value!r} is not one of {', '.join(DEVICE_CHOICES)}")
     return value
 
 

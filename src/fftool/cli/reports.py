@@ -95,8 +95,6 @@ def reproduce(
     scores every evaluation from its saved predictions: minADE, minFDE, NC, COL and Col-II, each with a
     bootstrap interval over test windows, and each variant's paired difference from the baseline.
     """
-    import time
-
     from fftool import pipeline
     from fftool.config import load_config
     from fftool.errors import UsageError
@@ -107,7 +105,6 @@ def reproduce(
     if pipeline_file and config and pipeline_file.resolve() != config.resolve():
         raise UsageError(f"two pipelines given ({pipeline_file} and -c {config}); give one")
     profile_file = pipeline_file or config
-    started = time.perf_counter()
     values = ({"evaluate.protocol": protocol} if protocol else {}) | ({"report.seeds": _seeds(seeds)} if seeds else {})
     cfg = load_config(profile_file, set_, values)
     store = open_store(root)
@@ -123,22 +120,21 @@ def reproduce(
         import torch
 
         torch.set_num_threads(threads)
-    results = ablation.run(
+    report, results, minutes = ablation.reproduce(
         cfg,
         store,
         pipeline.Runtime(device=device),
         benchmarks.split(",") if benchmarks else list(cfg.report.benchmarks),
         [v for v in (variants.split(",") if variants is not None else cfg.report.variants) if v],
+        out_dir,
+        profile,
+        command="fftool " + " ".join(sys.argv[1:]),
         on_cell=lambda b, p, s: log(f"[bold]{b} / {p}{'' if s is None else f' / seed {s}'}[/]"),
         prebuild=prebuild,
     )
-    command = "fftool " + " ".join(sys.argv[1:])
-    draw = lambda folder: ablation.figures(cfg, store, results, folder)  # noqa: E731
-    seconds = time.perf_counter() - started
-    report = ablation.write_report(cfg, store, results, out_dir, profile, command, seconds, draw)
     for table in [*report_tables(report.parent), run_summary(results)]:
         out_console.print(table)
-    log(f"report: {report} ({(time.perf_counter() - started) / 60:.1f} min)")
+    log(f"report: {report} ({minutes:.1f} min)")
 
 
 def _seeds(text: str) -> list[int]:
@@ -255,8 +251,8 @@ def rescore(
 
     Also prints COL and Col-II, so evaluations built before those metrics existed gain them.
     """
+    from fftool.reporting.rescoring import rescore_artifact
     from fftool.reporting.summaries import rescore_table
-    from fftool.stages.evaluate import rescore_artifact
     from fftool.ui import out_console
 
     store = open_store(root)

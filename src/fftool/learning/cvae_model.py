@@ -1,20 +1,25 @@
-"""A trained CVAE as the later stages see it: rebuild it from its artifact alone and draw K futures.
+"""The CVAE as functions: build it, its training loss and epoch plan, validation, drawing K futures, and
+loading a trained one from its artifact alone.
 
-Shared by the `cvae` stage (validation), `evaluate` and `plot`, which never import each other.
+Shared by the `cvae` stage (training, validation), `evaluate` and `plot`, which never import each other.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from fftool.artifacts.schema import CVAE_MODEL_FILE
 from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig
-from fftool.learning.features import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features
-from fftool.learning.training import model_file
-from fftool.models.forceformer import ForceFormer, Gaussian
+from fftool.learning.batches import SceneSet
+from fftool.learning.features import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features, prepare
+from fftool.learning.training import epoch_seed, generator, model_file, validation_subset
+from fftool.models.forceformer import ForceFormer, LossParts
+from fftool.science.metrics import ade_fde
 
 
 def build_model(cfg: CVAEConfig) -> ForceFormer:
@@ -49,21 +54,105 @@ def sample(
     dt_s: float | None,
     k: int,
     generator_: torch.Generator | None = None,
-    context: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """K futures per agent from the prior: (B, K, A, Tf, 2) in the normalised frame."""
-    B, A, Tf, _ = prepared.future_pos.shape
     with autocast(cfg, prepared.past.device):
-        tokens, agent_context = context or model.encode_past(prepared.past, prepared.agent_mask)
-        prior = model.prior(agent_context)
-        rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
-        z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_)
-        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
-        last = rep(prepared.past_pos[:, :, -1])
-        out = model.decode(
-            z, last, tokens, rep(prepared.agent_mask), Tf, features, repeat=k, last_step=rep(prepared.last_step)
+        tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
+        return model.sample(
+            model.prior(agent_context),
+            tokens,
+            prepared.agent_mask,
+            prepared.past_pos[:, :, -1],
+            prepared.last_step,
+            prepared.future_pos.shape[2],
+            decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k),
+            k,
+            generator_,
         )
-    return out.view(B, k, A, Tf, 2)
+
+
+def epoch_plan(
+    train: SceneSet, cfg: CVAEConfig, epoch: int, n_windows: int
+) -> tuple[list[np.ndarray], np.random.Generator]:
+    """The batches of one epoch (seeded by (seed, epoch)) and the generator that goes on to draw agent caps."""
+    rng = np.random.default_rng(epoch_seed(cfg.seed, epoch))
+    return train.plan(rng.permutation(train.windows)[:n_windows], cfg.batch_windows, cfg.max_agent_pairs, rng), rng
+
+
+def training_loss(
+    net: torch.nn.Module,
+    prepared: Prepared,
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
+    gen: torch.Generator,
+) -> LossParts:
+    """AgentFormer's loss parts for one batch (posterior reconstruction, KL, best-of-train_k): the model's
+    forward, called through `net` (the model, or the model in DistributedDataParallel)."""
+    with autocast(cfg, prepared.past.device):
+        return net(
+            prepared.past,
+            prepared.future,
+            prepared.future_pos,
+            prepared.agent_mask,
+            prepared.past_pos[:, :, -1],
+            prepared.last_step,
+            decoder_features(cfg.variant, prepared, forces_cfg, dt_s),
+            decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=cfg.train_k),
+            cfg.train_k,
+            cfg.kl_min,
+            gen,
+        )
+
+
+@torch.no_grad()
+def val_metrics(
+    scenes: SceneSet,
+    windows: np.ndarray,
+    cfg: CVAEConfig,
+    obs_len: int,
+    device: torch.device,
+    predict: Callable[[Prepared], torch.Tensor],
+) -> tuple[float, float]:
+    """minADE_K and minFDE_K (metres, minima per agent, independent) of `predict`'s (B, K, A, Tf, 2)
+    futures in the normalised frame (rotation-free here: metres as is), ground-truth goals."""
+    ade, fde, count = 0.0, 0.0, 0
+    for members in scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0)):
+        prepared = prepare(scenes.batch(members).to(device), cfg.variant, obs_len)
+        sample_ade, sample_fde = ade_fde(predict(prepared), prepared.future_pos)  # (B, K, A)
+        mask = prepared.agent_mask
+        ade += float((sample_ade.min(1).values * mask).sum())
+        fde += float((sample_fde.min(1).values * mask).sum())
+        count += int(mask.sum())
+    return ade / max(count, 1), fde / max(count, 1)
+
+
+def validate(
+    model: ForceFormer,
+    scenes: SceneSet,
+    windows: np.ndarray,
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
+    obs_len: int,
+    device: torch.device,
+) -> tuple[float, float]:
+    """The model's validation minADE_K / minFDE_K with K = cfg.k prior samples."""
+    model.eval()
+    gen = generator(cfg.seed, device)
+    return val_metrics(
+        scenes,
+        windows,
+        cfg,
+        obs_len,
+        device,
+        lambda prepared: sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen),
+    )
+
+
+def val_windows(scenes: SceneSet, cfg: CVAEConfig) -> np.ndarray:
+    """The fixed validation subset: `val_max_windows` windows drawn with the run's seed (all if 0)."""
+    return validation_subset(scenes.windows, cfg.val_max_windows, cfg.seed)
 
 
 class Trained(NamedTuple):

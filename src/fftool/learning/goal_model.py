@@ -6,6 +6,7 @@ Shared by the `goal` (training) and `goals` (sampling) stages, which never impor
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import torch
 import torch.nn.functional as F
@@ -99,6 +100,28 @@ def predict_goals(
     return cells_to_world(cells, center, R, cfg.resolution_m, cfg.crop_cells)
 
 
+def goal_batches(
+    model: GoalUNet,
+    data: AgentWindows,
+    scene: Tensor,
+    maps: SceneMaps,
+    cfg: GoalConfig,
+    goals_cfg: GoalsConfig,
+    gen: torch.Generator,
+    obs_len: int,
+    pred_len: int,
+    device: torch.device,
+    batch: int,
+) -> Iterator[tuple[int, Tensor, Tensor]]:
+    """(end row, positions (b, T, 2), goals (b, K, 2)) for consecutive batches of `data`, drawn from `gen` in
+    row order (what the caller draws from `gen` between batches stays in that order too)."""
+    for start in range(0, len(data), batch):
+        index = slice(start, start + batch)
+        xy = torch.as_tensor(data.xy[index], dtype=torch.float32, device=device)
+        goals = predict_goals(model, xy[:, :obs_len], scene[index].to(device), maps, cfg, goals_cfg, gen, pred_len)
+        yield min(start + batch, len(data)), xy, goals
+
+
 def evaluate(
     model: GoalUNet,
     data: AgentWindows,
@@ -115,10 +138,8 @@ def evaluate(
     model.eval()
     gen = generator(seed, device)
     fde_k, fde_1 = [], []
-    for start in range(0, len(data), cfg.batch_size * 4):
-        index = slice(start, start + cfg.batch_size * 4)
-        xy = torch.as_tensor(data.xy[index], dtype=torch.float32, device=device)
-        goals = predict_goals(model, xy[:, :obs_len], scene[index].to(device), maps, cfg, goals_cfg, gen, pred_len)
+    batches = goal_batches(model, data, scene, maps, cfg, goals_cfg, gen, obs_len, pred_len, device, cfg.batch_size * 4)
+    for _, xy, goals in batches:
         k, one = goal_fde(goals, xy[:, -1])
         fde_k.append(k)
         fde_1.append(one)

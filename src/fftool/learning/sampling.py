@@ -7,7 +7,7 @@ what comes out, `predict` writes it: the same windows, seed and model give the s
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 import torch
@@ -18,6 +18,7 @@ from fftool.learning.cvae_model import Trained, sample
 from fftool.learning.features import prepare
 from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
 from fftool.learning.training import generator
+from fftool.paper import reads_goal
 
 # (batch, positions of its slots in the scene set's rows, -1 for padding) -> (B, K, A, 2) world goals
 GoalsOf = Callable[[SceneBatch, np.ndarray], torch.Tensor]
@@ -47,7 +48,7 @@ class Predictor:
     @property
     def protocol(self) -> str:
         """The goal protocol actually used: none for predictors that read no goal."""
-        return "none" if self.variant in ("cv", "baseline") else self.cfg.protocol
+        return self.cfg.protocol if reads_goal(self.variant) else "none"
 
     def goals(self, batch: SceneBatch, positions: np.ndarray) -> torch.Tensor:
         """(B, K, A, 2) world goals per sample under the protocol; the last observed position when unused."""
@@ -82,6 +83,24 @@ def plan_batches(scenes: SceneSet, cfg: EvaluateConfig) -> list[np.ndarray]:
     """Every window of the scene set cut into padded batches, in an order drawn from `cfg.seed`."""
     rng = np.random.default_rng(cfg.seed)
     return scenes.plan(np.arange(scenes.windows), cfg.batch_windows, cfg.max_agent_pairs, rng)
+
+
+# (batch, goals (B, K, A, 2), futures (B, K, A, T, 2)) -> (B, A, ...) arrays or tensors to keep per real agent
+Fields = Callable[[SceneBatch, torch.Tensor, torch.Tensor], dict[str, "torch.Tensor | np.ndarray"]]
+
+
+def collect(batches: Iterable[tuple[SceneBatch, torch.Tensor, torch.Tensor]], fields: Fields) -> dict[str, np.ndarray]:
+    """What `fields` keeps of each sampled batch, for the real agents only, in the scene set's row order
+    (its `row` column): how `evaluate` and `predict` turn padded batches back into agent-windows."""
+    parts: dict[str, list[np.ndarray]] = {}
+    for batch, goals, futures in batches:
+        mask = batch.agent_mask.cpu().numpy()
+        for name, values in ({"row": batch.row} | fields(batch, goals, futures)).items():
+            array = values.cpu().numpy() if isinstance(values, torch.Tensor) else values
+            parts.setdefault(name, []).append(array[mask])
+    columns = {name: np.concatenate(values) for name, values in parts.items()}
+    order = np.argsort(columns["row"])
+    return {name: values[order] for name, values in columns.items()}
 
 
 @torch.no_grad()

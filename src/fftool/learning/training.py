@@ -37,6 +37,13 @@ def seed_all(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def validation_subset(n: int, most: int, seed: int) -> np.ndarray:
+    """The fixed validation subset of a run: `most` of `n` items drawn with the run's seed, sorted (all if 0)."""
+    if most and n > most:
+        return np.sort(np.random.default_rng(seed).choice(n, most, replace=False))
+    return np.arange(n)
+
+
 def epoch_seed(seed: int, epoch: int) -> int:
     """The seed of epoch `epoch` (0-based) of a run seeded `seed`. Every epoch draws from its own seed, so
     a run resumed after its last finished epoch draws exactly what the uninterrupted run drew."""
@@ -173,6 +180,21 @@ class Progress:
         if metric < self.best_metric:
             self.best_metric, self.best_epoch = metric, int(row["epoch"])
             self.best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+    def stats(self, benchmark: str, device: torch.device, best_by: str, seconds: float) -> dict[str, Any]:
+        """The manifest stats every trained model shares: where and how it ran, its best epoch and the log."""
+        return {
+            "benchmark": benchmark,
+            "device": str(device),
+            "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
+            "world_size": distributed.world_size(),  # torchrun ranks (docs/scaling.md); results depend on it too
+            "backend": distributed.backend(),
+            "best_epoch": self.best_epoch,
+            f"best_{best_by}": self.best_metric,
+            "resumed_from_epoch": self.start_epoch,
+            "seconds_this_run": seconds,
+            "log": self.log,
+        }
 
 
 def resume(path: Path, device: torch.device, stateful: dict[str, Any]) -> Progress:

@@ -343,6 +343,58 @@ class ForceFormer(nn.Module):
             x = layer(x, context, A, masks)
         return Gaussian(*self.q_head(x.view(B, Tf, A, -1).mean(1)).float().chunk(2, -1))
 
+    # --- train ------------------------------------------------------------------------------------
+
+    def forward(
+        self,
+        past: Tensor,
+        future: Tensor,
+        target: Tensor,
+        agent_mask: Tensor,
+        last_pos: Tensor,
+        last_step: Tensor,
+        features: StepFeatures,
+        features_k: StepFeatures,
+        k: int,
+        kl_min: float,
+        generator: torch.Generator | None = None,
+    ) -> LossParts:
+        """AgentFormer's training loss terms for one batch (so DistributedDataParallel wraps the model itself).
+
+        past, future: (B, A, Tp|Tf, F) encoder and posterior features; target: (B, A, Tf, 2) the positions to
+        predict; last_pos, last_step: (B, A, 2) the last observed position and displacement; features and
+        features_k: the decoder's step features for one and for `k` samples per window (`decode`).
+        The posterior draw comes first, then the k prior draws, from `generator`.
+        """
+        tokens, agent_context = self.encode_past(past, agent_mask)
+        q = self.posterior(future, tokens, agent_mask)
+        p = self.prior(agent_context)
+        steps = target.shape[2]
+        recon = self.decode(q.sample(generator), last_pos, tokens, agent_mask, steps, features, last_step=last_step)
+        samples = self.sample(p, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator)
+        return cvae_loss(recon, target, q, p, samples, agent_mask, kl_min)
+
+    def sample(
+        self,
+        prior: Gaussian,
+        context: Tensor,
+        agent_mask: Tensor,
+        last_pos: Tensor,
+        last_step: Tensor,
+        steps: int,
+        features_k: StepFeatures,
+        k: int,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """k futures per agent drawn from `prior`: (B, k, A, steps, 2), the context shared by the k samples."""
+        B, A, _ = last_pos.shape
+        rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
+        z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator)
+        out = self.decode(
+            z, rep(last_pos), context, rep(agent_mask), steps, features_k, repeat=k, last_step=rep(last_step)
+        )
+        return out.view(B, k, A, steps, 2)
+
     # --- decode -----------------------------------------------------------------------------------
 
     def decode(

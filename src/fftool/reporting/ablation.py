@@ -62,9 +62,9 @@ def cells(cfg: PipelineConfig, benchmarks: Iterable[str], variants: Iterable[str
     ]
 
 
-# Builds what the cells need ahead of `run`, e.g. concurrently (fftool.scheduler.build_grid); returns
-# the seconds each (stage, fingerprint) build took.
-Prebuild = Callable[[list[tuple[PipelineConfig, str]]], dict[tuple[str, str], float]]
+# Builds what the cells need ahead of `run`, e.g. concurrently (fftool.scheduler.build_grid); returns, per
+# cell, the (stage, fingerprint) builds it was first to need and the seconds each took.
+Prebuild = Callable[[list[tuple[PipelineConfig, str]]], list[dict[tuple[str, str], float]]]
 
 
 def run(
@@ -83,32 +83,50 @@ def run(
     wall time.
     """
     grid = cells(cfg, benchmarks, variants)
-    claimed: set[tuple[str, str]] = set()
-    missing = []
-    for cell in grid:
-        keys = [(r.stage.name, r.fingerprint) for r in pipeline.resolve(cell.cfg, ["evaluate"], cell.benchmark)]
-        missing.append([key for key in keys if key not in claimed and store.lookup(*key) is None])
-        claimed.update(keys)
-    seconds = prebuild([(cell.cfg, cell.benchmark) for cell in grid]) if prebuild else {}
+    prebuilt = prebuild([(cell.cfg, cell.benchmark) for cell in grid]) if prebuild else None
     results = []
-    for cell, new in zip(grid, missing, strict=True):
+    for i, cell in enumerate(grid):
         if on_cell:
             on_cell(cell.benchmark, cell.predictor, cell.seed)
         started = time.perf_counter()
         built = pipeline.run(cell.cfg, store, ["evaluate"], runtime=runtime, benchmark=cell.benchmark)
         artifact = built["evaluate"]
-        took = sum(seconds.get(key, 0.0) for key in new) if prebuild else time.perf_counter() - started
+        if prebuilt is None:
+            new, took = list(built.new), time.perf_counter() - started
+        else:
+            new, took = [stage for stage, _ in prebuilt[i]], sum(prebuilt[i].values())
         results.append(
             artifact.manifest.stats
             | {
                 "artifact": artifact.id,
                 "grid_seed": cell.seed,
                 "windows": built["windows"].id,
-                "built_now": [stage for stage, _ in new],
+                "built_now": new,
                 "cell_seconds": took,
             }
         )
     return results
+
+
+def reproduce(
+    cfg: PipelineConfig,
+    store: ArtifactStore,
+    runtime: pipeline.Runtime,
+    benchmarks: Iterable[str],
+    variants: Iterable[str],
+    out_dir: Path,
+    profile: str,
+    command: str,
+    on_cell: Callable[[str, str, int | None], None] | None = None,
+    prebuild: Prebuild | None = None,
+) -> tuple[Path, list[dict[str, Any]], float]:
+    """`fftool reproduce`: build or reuse every cell (`run`), then write the report with its figures into
+    `out_dir` (checked by `check_report_folder`); the report's path, the cells' results and the minutes taken."""
+    started = time.perf_counter()
+    results = run(cfg, store, runtime, benchmarks, variants, on_cell=on_cell, prebuild=prebuild)
+    draw = lambda folder: figures(cfg, store, results, folder)  # noqa: E731
+    report = write_report(cfg, store, results, out_dir, profile, command, time.perf_counter() - started, draw)
+    return report, results, (time.perf_counter() - started) / 60
 
 
 def figures(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path) -> list[Path]:

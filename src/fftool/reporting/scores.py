@@ -1,6 +1,6 @@
 """Every table number with its uncertainty: the spread over grid seeds and a bootstrap over test windows.
 
-Each evaluation's per-agent metrics are recomputed from its saved predictions (`evaluate.rescored_columns`),
+Each evaluation's per-agent metrics are recomputed from its saved predictions (`rescoring.rescored_columns`),
 so COL and Col-II reach evaluations built before they existed and nothing is sampled again. One matrix of
 window draws per benchmark (science/bootstrap.py) serves every predictor, seed and metric, so a difference
 between two predictors is a paired bootstrap. A score's replicates are those of its mean over seeds: the
@@ -77,7 +77,7 @@ def score(
 
     results: the ablation's cells, each an evaluate manifest's stats with `artifact` and `grid_seed`.
     """
-    from fftool.stages.evaluate import rescored_columns  # torch: only when scores are computed
+    from fftool.reporting.rescoring import rescored_columns  # torch: only when scores are computed
 
     cells: dict[tuple[str, str, str], list[tuple[float, np.ndarray]]] = {}
     rows = []

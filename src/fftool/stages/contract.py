@@ -1,10 +1,13 @@
-"""The stage contract: what every stage module declares, and what the engine hands its `build`.
+"""The stage contract: what a stage module declares, and what the engine hands its `build`.
 
-A stage module (`fftool/stages/<kind>.py`, named after the artifact kind it makes) exposes `NAME`,
-`VERSION`, `INPUTS`, `build(cfg, inputs, ctx) -> stats` and `STAGE`, the `Stage` that tells the engine
-(`fftool.pipeline`) everything else: its configuration section, the command that makes it, raw inputs
-hashed into its fingerprint, and whether it is built once per benchmark. Stages never import each
-other; they agree on artifacts (`fftool.artifacts.schema`).
+A stage module (`fftool/stages/<kind>.py`, named after the artifact kind it makes) exposes `STAGE`, a
+`Stage`, whose `declare(cfg)` says in one place everything one build reads (`Reads`): the upstream
+artifacts and which parts of each, the configuration keys (across sections, like DVC's `params:`),
+the raw files by content hash, and the command line that makes it. The engine (`fftool.pipeline`)
+computes the fingerprint from exactly that declaration and hands `build` a view of the configuration
+that holds only the declared keys (`ConfigView`): reading any other key raises `UndeclaredRead`, so a
+value that steers a build but not its fingerprint cannot exist. Stages never import each other; they
+agree on artifacts (`fftool.artifacts.schema`).
 """
 
 from __future__ import annotations
@@ -40,14 +43,10 @@ class StageContext:
     on_epoch: OnEpoch = _ignore
 
     def device(self) -> Any:
-        """The torch device to run on (imported here, so stages without torch never load it)."""
-        import torch
+        """The torch device to run on (`learning.devices.resolve`, imported here so torch-free stages stay so)."""
+        from fftool.learning.devices import resolve
 
-        if self.device_name == "auto":
-            return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-        if self.device_name == "cuda" and not torch.cuda.is_available():
-            raise FftoolError("--device cuda was asked for, but torch sees no CUDA device; use --device auto or cpu")
-        return torch.device(self.device_name)
+        return resolve(self.device_name)
 
     def need_benchmark(self) -> str:
         if self.benchmark is None:
@@ -55,38 +54,119 @@ class StageContext:
         return self.benchmark
 
 
-Build = Callable[[PipelineConfig, Mapping[str, Artifact], StageContext], dict[str, Any]]
+@dataclass(frozen=True)
+class Reads:
+    """Everything one build reads, declared once; its fingerprint is computed from exactly this.
+
+    params: configuration keys as "section.key", or "section.*" for a whole section. Keys of the stage's
+        own section are recorded under their bare name; the section's keys a build does not read are
+        recorded at their defaults (so a section's record has one layout, and the fingerprints made
+        before this contract stay valid). Keys of other sections are recorded as "section.key".
+    artifacts: upstream stage -> the parts of its artifact the build reads (None: all of it). Reading
+        parts hashes only the upstream parameters those parts depend on (`Stage.parts`), and lets the
+        build read those configuration keys too (they are in the fingerprint through that view).
+    raw_files: raw input name -> sha256 of its bytes (files enter by content, never by path).
+    locations: configuration keys that say where the raw files lie: readable by the build, not hashed.
+    command: the options of the stage's command that select this artifact (e.g. " --variant dr").
+    """
+
+    params: tuple[str, ...]
+    artifacts: Mapping[str, tuple[str, ...] | None] = field(default_factory=dict)
+    raw_files: Mapping[str, str] = field(default_factory=dict)
+    locations: tuple[str, ...] = ()
+    command: str = ""
+
+
+Build = Callable[["PipelineConfig", Mapping[str, Artifact], StageContext], dict[str, Any]]
 
 
 @dataclass(frozen=True)
 class Stage:
-    """One node of the DAG: its name, what it reads, how it is configured and built."""
+    """One node of the DAG: its name and version, what one build reads (`declare`), and how it is built."""
 
     name: str
-    version: int
-    inputs: tuple[str, ...]
-    command: str  # the CLI command that makes it, for error messages
-    section: Callable[[PipelineConfig], BaseModel]  # the configuration its fingerprint hashes
-    build: Build
-    description: Callable[[PipelineConfig, str | None], str]  # the progress bar's label
-    external_inputs: Callable[[PipelineConfig], dict[str, str]] = field(default=lambda cfg: {})
+    version: int  # the artifact's schema version (fftool.artifacts.schema.VERSIONS)
+    command: str  # the CLI command that makes it, for messages
+    label: str  # what the progress bar calls a build
+    declare: Callable[[PipelineConfig], Reads]
+    build: Build  # gets a ConfigView of the declared keys, the declared artifacts and a StageContext
+    section: str | None = None  # its own configuration section (see Reads.params)
     per_benchmark: bool = False  # one artifact per leave-one-out benchmark (the benchmark is a parameter)
-    # Upstream stages that depend on the configuration (a subset of `inputs`); default: all of them.
-    needs: Callable[[PipelineConfig], tuple[str, ...]] | None = None
-    # The command's options that select this artifact (e.g. ` --variant dr`), for error messages.
-    command_args: Callable[[PipelineConfig], str] = field(default=lambda cfg: "")
-    # The parts it reads of upstream artifacts whose stage has a `view` (e.g. {"forces": ("f_dr",)}):
-    # its fingerprint then hashes only the upstream parameters those parts depend on.
-    reads: Callable[[PipelineConfig], Mapping[str, tuple[str, ...]]] = field(default=lambda cfg: {})
-    # For a producer: its parameters (from its resolved params) that the named parts of its artifact depend on.
-    view: Callable[[Mapping[str, Any], tuple[str, ...]], dict[str, Any]] | None = None
     # Trains data-parallel under torchrun: every rank runs `build`, rank 0 alone installs (pipeline._follow).
     distributed: bool = False
+    # For a producer whose consumers may read parts of its artifact: the keys of its section each part
+    # depends on (forces.ARRAY_PARAMS), so a consumer of some parts is fingerprinted on those keys alone.
+    parts: Mapping[str, frozenset[str]] = field(default_factory=dict)
 
-    def inputs_for(self, cfg: PipelineConfig | None) -> tuple[str, ...]:
-        return self.inputs if self.needs is None or cfg is None else self.needs(cfg)
+    def view_keys(self, parts: tuple[str, ...]) -> frozenset[str]:
+        """The keys of this stage's section that the named parts of its artifact depend on (`parts`)."""
+        unknown = set(parts) - set(self.parts)
+        if unknown:
+            raise KeyError(f"stage {self.name!r} has no parts {sorted(unknown)}; its parts: {sorted(self.parts)}")
+        return frozenset().union(*(self.parts[part] for part in parts))
 
-    def command_line(self, cfg: PipelineConfig, benchmark: str | None) -> str:
-        """The command that makes this stage's artifact for `cfg` (and `benchmark`), as a user would type it."""
+    def describe(self, reads: Reads, benchmark: str | None) -> str:
+        where = f" ({benchmark})" if self.per_benchmark and benchmark else ""
+        return f"{self.label}{reads.command}{where}"
+
+    def command_line(self, reads: Reads, benchmark: str | None) -> str:
+        """The command that makes this build's artifact, as a user would type it."""
         where = f" --benchmarks {benchmark}" if self.per_benchmark and benchmark else ""
-        return f"{self.command}{where}{self.command_args(cfg)}"
+        return f"{self.command}{where}{reads.command}"
+
+
+class UndeclaredRead(FftoolError):
+    """A build read a configuration key its declaration does not list: a bug in the stage, found loudly."""
+
+
+def allowed_keys(cfg: PipelineConfig, params: tuple[str, ...]) -> frozenset[str]:
+    """ "section.key" of every key `params` names ("section.*" expands to the whole section)."""
+    keys: set[str] = set()
+    for param in params:
+        section, _, key = param.partition(".")
+        names = type(getattr(cfg, section)).model_fields
+        if key == "*":
+            keys |= {f"{section}.{name}" for name in names}
+        elif key in names:
+            keys.add(param)
+        else:
+            raise KeyError(f"declared parameter {param!r} is not a configuration key")
+    return frozenset(keys)
+
+
+class SectionView:
+    """One configuration section as a build sees it: the declared keys, nothing else."""
+
+    def __init__(self, section: BaseModel, name: str, allowed: frozenset[str], stage: str) -> None:
+        self._section, self._name, self._allowed, self._stage = section, name, allowed, stage
+
+    def __getattr__(self, key: str) -> Any:
+        if key in type(self._section).model_fields and key not in self._allowed:
+            raise UndeclaredRead(
+                f"stage {self._stage!r} read {self._name}.{key}, which its declaration (STAGE.declare in "
+                f"fftool/stages/{self._stage}.py) does not list; declare it so that it enters the fingerprint"
+            )
+        if key.startswith("model_") and key != "model_dump":
+            raise UndeclaredRead(f"stage {self._stage!r} used {self._name}.{key} on a section it reads only in part")
+        return getattr(self._section, key)
+
+    def model_dump(self, **kwargs: Any) -> dict[str, Any]:
+        """The declared keys only (e.g. the force constants a CVAE's decoder was trained with)."""
+        return {k: v for k, v in self._section.model_dump(**kwargs).items() if k in self._allowed}
+
+
+class ConfigView:
+    """The configuration as a build sees it: whole sections where every key is declared, a `SectionView`
+    where some are, and a view that refuses every key where none is."""
+
+    def __init__(self, cfg: PipelineConfig, allowed: frozenset[str], stage: str) -> None:
+        self._cfg, self._allowed, self._stage = cfg, allowed, stage
+
+    def __getattr__(self, name: str) -> Any:
+        if name not in type(self._cfg).model_fields:
+            raise AttributeError(name)
+        section = getattr(self._cfg, name)
+        keys = frozenset(key for key in type(section).model_fields if f"{name}.{key}" in self._allowed)
+        return (
+            section if keys == frozenset(type(section).model_fields) else SectionView(section, name, keys, self._stage)
+        )

@@ -15,31 +15,28 @@ from the predicted positions at every decoding step.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
-from functools import partial
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.artifacts.schema import GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE
-from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
+from fftool.artifacts.schema import COMMANDS, GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE, VERSIONS
+from fftool.artifacts.store import Artifact
 from fftool.config import EvaluateConfig, PipelineConfig
-from fftool.errors import ArtifactMissing, FftoolError
-from fftool.learning.batches import AgentWindows, SceneSet, load_agent_windows, load_scene_set
+from fftool.errors import FftoolError
+from fftool.learning.batches import SceneBatch, SceneSet, load_scene_set
 from fftool.learning.cvae_model import load_model
 from fftool.learning.features import SAMPLING_READS
-from fftool.learning.sampling import Predictor, plan_batches, sample_batches
+from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
+from fftool.paper import reads_goal
 from fftool.science.metrics import agent_metrics, collision_count
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "evaluate"
-VERSION: Final = 1
-INPUTS: Final = ("windows", "forces", "cvae", "goals")  # at most; `reads` says which, per predictor
 
 METRIC_DEFINITIONS: Final = {
     "min_ade": "mean over agent-windows of min over K samples of the mean over the T future steps of the "
@@ -57,38 +54,40 @@ METRIC_DEFINITIONS: Final = {
     "same time, on both paths split at 2 points per step; rate = col_gt / agent_windows; independent of gamma",
 }
 METRIC_COLUMNS: Final = ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions", "col", "col_gt")
-# Windows × K × agents² per rescoring pass: bounds the memory of COL's (B, K, 14, A, A) distances.
-_RESCORE_PAIRS: Final = 200_000
 
 
-def reads_goal(cfg: PipelineConfig) -> bool:
-    """Whether the evaluated predictor takes a goal (a goal, dr or re CVAE); cv and the baseline do not."""
-    return cfg.evaluate.predictor == "cvae" and cfg.cvae.variant != "baseline"
+def predictor_of(cfg: PipelineConfig) -> str:
+    """The predictor an evaluation scores: cv, or the CVAE variant of the cvae section."""
+    return "cv" if cfg.evaluate.predictor == "cv" else cfg.cvae.variant
 
 
-def forces_read(cfg: PipelineConfig) -> tuple[str, ...]:
-    """The forces arrays an evaluation reads: none for cv, the baseline and goal (`features.SAMPLING_READS`)."""
-    return SAMPLING_READS[cfg.cvae.variant] if cfg.evaluate.predictor == "cvae" else ()
+def declare(cfg: PipelineConfig) -> Reads:
+    """Only what the predictor and protocol read: the goal protocol only for predictors that read a goal (so
+    the baseline and cv evaluations are shared by every protocol), the sampled goals unless the protocol is
+    the oracle, the constant-velocity noise only for cv, the forces arrays sampling uses (dr, re)."""
+    predictor = predictor_of(cfg)
+    shared = tuple(f"evaluate.{key}" for key in EvaluateConfig.model_fields if key not in _PER_PREDICTOR)
+    if predictor == "cv":
+        return Reads(
+            params=(*shared, "evaluate.cv_angle_std_deg", "evaluate.cv_speed_std"),
+            artifacts={"windows": None},
+            command=" --variant cv",
+        )
+    goal = reads_goal(predictor)
+    arrays = SAMPLING_READS[predictor]
+    artifacts: dict[str, tuple[str, ...] | None] = {"windows": None, **({"forces": arrays} if arrays else {})}
+    artifacts["cvae"] = None
+    if goal and cfg.evaluate.protocol != "oracle":
+        artifacts["goals"] = None
+    return Reads(
+        params=(*shared, *(("evaluate.protocol",) if goal else ())),
+        artifacts=artifacts,
+        command=f" --variant {predictor}" + (f" --protocol {cfg.evaluate.protocol}" if goal else ""),
+    )
 
 
-def reads(cfg: PipelineConfig) -> tuple[str, ...]:
-    """Upstream stages of an evaluation: only what its predictor and protocol actually read."""
-    if cfg.evaluate.predictor == "cv":
-        return ("windows",)
-    forces = ("forces",) if forces_read(cfg) else ()
-    goals = ("goals",) if reads_goal(cfg) and cfg.evaluate.protocol != "oracle" else ()
-    return ("windows", *forces, "cvae", *goals)
-
-
-def section(cfg: PipelineConfig) -> EvaluateConfig:
-    """The evaluate parameters that matter, the others fingerprinted at their defaults: the goal protocol
-    only for predictors that read a goal (so the baseline and cv evaluations are shared by every protocol),
-    the constant-velocity noise only for the cv predictor."""
-    default = EvaluateConfig()
-    unread = {} if reads_goal(cfg) else {"protocol": default.protocol}
-    if cfg.evaluate.predictor != "cv":
-        unread |= {"cv_angle_std_deg": default.cv_angle_std_deg, "cv_speed_std": default.cv_speed_std}
-    return cfg.evaluate.model_copy(update=unread)
+# The evaluate keys only some predictors read (`declare`): the goal protocol, the constant-velocity noise.
+_PER_PREDICTOR: Final = frozenset({"protocol", "cv_angle_std_deg", "cv_speed_std"})
 
 
 def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
@@ -104,11 +103,6 @@ def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: 
             f"({len(rows)} goal rows for {len(scenes.data)} agent-windows); rebuild with fftool sample-goals"
         )
     return np.load(goals.file(GOALS_FILE), mmap_mode="r")[rows]
-
-
-def _real_agents(values: torch.Tensor, mask: np.ndarray) -> np.ndarray:
-    """(B, A, ...) -> (real agents, ...) in window-major order."""
-    return values.cpu().numpy()[mask]
 
 
 def _predictions_table(columns: dict[str, np.ndarray], k: int, pred_len: int) -> pa.Table:
@@ -153,35 +147,26 @@ def sample_and_score(
     trained = load_model(cvae, device) if cvae is not None else None
     predictor = Predictor(cfg, trained, sampled, obs_len, pred_len, device)
     plan = plan_batches(scenes, cfg)
-    batches = sample_batches(predictor, scenes, plan, predictor.goals, device)
-    parts: dict[str, list[np.ndarray]] = {}
-    started = time.perf_counter()
-    with torch.no_grad():
-        for done, (batch, goals_k, futures) in enumerate(batches):
-            metrics = agent_metrics(futures, batch.xy[:, :, obs_len:], batch.agent_mask, cfg.collision_threshold_m)
-            mask = batch.agent_mask.cpu().numpy()
-            take = partial(_real_agents, mask=mask)
-            found = {
-                "row": take(batch.row),
-                "n_agents": np.broadcast_to(mask.sum(1, keepdims=True), mask.shape)[mask],
-                "min_ade": take(metrics.min_ade),
-                "min_fde": take(metrics.min_fde),
-                "best_k": take(metrics.best_k),
-                "collisions": take(metrics.collisions),
-                "joint_collisions": take(metrics.joint_collisions),
-                "col": take(metrics.col),
-                "col_gt": take(metrics.col_gt),
-                "goal": take(goals_k.transpose(1, 2)),
-                "pred": take(futures.transpose(1, 2)),
-            }
-            for name, values in found.items():
-                parts.setdefault(name, []).append(values)
+
+    def scored(batch: SceneBatch, goals_k: torch.Tensor, futures: torch.Tensor) -> dict[str, Any]:
+        metrics = agent_metrics(futures, batch.xy[:, :, obs_len:], batch.agent_mask, cfg.collision_threshold_m)
+        n_agents = batch.agent_mask.sum(1, keepdim=True).expand_as(batch.agent_mask)
+        names = ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions", "col", "col_gt")
+        return {"n_agents": n_agents, **{name: getattr(metrics, name) for name in names}} | {
+            "goal": goals_k.transpose(1, 2),
+            "pred": futures.transpose(1, 2),
+        }
+
+    def reported(batches: Iterable[tuple[SceneBatch, torch.Tensor, torch.Tensor]]) -> Iterator[Any]:
+        for done, item in enumerate(batches):
+            yield item
             if on_progress:
                 on_progress(f"evaluate {predictor.variant} ({benchmark})", done + 1, len(plan))
+
+    started = time.perf_counter()
+    with torch.no_grad():
+        columns = collect(reported(sample_batches(predictor, scenes, plan, predictor.goals, device)), scored)
     seconds = time.perf_counter() - started
-    columns = {name: np.concatenate(values) for name, values in parts.items()}
-    order = np.argsort(columns["row"])
-    columns = {name: values[order] for name, values in columns.items()}
     position = np.searchsorted(scenes.data.row, columns["row"])
     columns["window_id"], columns["ped_id"] = scenes.data.window_id[position], scenes.data.ped_id[position]
     pq.write_table(_predictions_table(columns, cfg.k, pred_len), out_dir / PREDICTIONS_FILE)
@@ -190,7 +175,7 @@ def sample_and_score(
         "device": str(device),
         "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
         "seconds": round(seconds, 2),
-        "agent_windows_per_s": round(len(order) / seconds, 1),
+        "agent_windows_per_s": round(len(columns["row"]) / seconds, 1),
     }
 
 
@@ -229,64 +214,6 @@ def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str,
     }
 
 
-def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: float) -> dict[str, np.ndarray]:
-    """Per-agent metrics recomputed from saved predictions (e.g. at another γ) without sampling again.
-
-    predictions: an evaluation's predictions.parquet; data: the agent-windows of the same part (for
-    the ground truth). Returns the predictions file's metric columns and COL and Col-II (METRIC_COLUMNS),
-    in its row order. Windows are scored in passes of at most _RESCORE_PAIRS windows × K × agents².
-    """
-    position = np.searchsorted(data.row, predictions["agent_row"].to_numpy())
-    pred = np.stack(predictions["pred"].to_numpy()).reshape(len(predictions), k, -1, 2)
-    truth = data.xy[position, -pred.shape[2] :]
-    windows = predictions["window_id"].to_numpy()
-    starts = np.r_[0, np.flatnonzero(np.diff(windows)) + 1, len(windows)]
-    slot = np.arange(len(windows)) - np.repeat(starts[:-1], np.diff(starts))
-    B, A = len(starts) - 1, int(np.diff(starts).max())
-    which = np.repeat(np.arange(B), np.diff(starts))
-    padded_pred = torch.zeros(B, A, k, pred.shape[2], 2)
-    padded_truth = torch.zeros(B, A, pred.shape[2], 2)
-    mask = torch.zeros(B, A, dtype=torch.bool)
-    padded_pred[which, slot] = torch.as_tensor(pred, dtype=torch.float32)
-    padded_truth[which, slot] = torch.as_tensor(truth, dtype=torch.float32)
-    mask[which, slot] = True
-    step = max(1, _RESCORE_PAIRS // (k * A * A))
-    passes = [
-        agent_metrics(padded_pred[lo : lo + step].transpose(1, 2), padded_truth[lo : lo + step], mask[lo : lo + step],
-                      threshold_m)
-        for lo in range(0, B, step)
-    ]  # fmt: skip
-    return {name: torch.cat([getattr(m, name) for m in passes])[which, slot].numpy() for name in METRIC_COLUMNS}
-
-
-def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, Any]:
-    """An evaluate artifact's summary recomputed from its saved predictions with collision threshold
-    `threshold_m` (command `fftool rescore`): no sampling, so only the NC counts can change; COL and Col-II
-    are computed for evaluations built before they existed."""
-    columns = rescored_columns(store, evaluation, threshold_m)  # checks first that it is an evaluation
-    stats = evaluation.manifest.stats
-    cfg = EvaluateConfig(part=stats["part"], k=stats["k"], seed=stats["seed"], collision_threshold_m=threshold_m)
-    return summary(columns, cfg, stats["benchmark"], stats["variant"], stats["protocol"])
-
-
-def rescored_columns(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, np.ndarray]:
-    """An evaluation's per-agent metric columns (METRIC_COLUMNS) recomputed from its saved predictions, NC at
-    `threshold_m`, with each row's window_id: what `rescore` prints and what the report's intervals resample."""
-    check_schema(evaluation, NAME, VERSION, "fftool evaluate")
-    windows = store.lookup("windows", evaluation.manifest.built_from()["windows"])
-    if windows is None:
-        raise ArtifactMissing(
-            f"the windows artifact {evaluation.id} was built from is no longer under {store.root}; run `fftool ingest`"
-        )
-    store.check_inputs(
-        {"evaluate": evaluation, "windows": windows}, {"evaluate": "fftool evaluate", "windows": "fftool ingest"}
-    )
-    stats = evaluation.manifest.stats
-    predictions = pd.read_parquet(evaluation.file(PREDICTIONS_FILE), columns=["window_id", "agent_row", "pred"])
-    data = load_agent_windows(windows, stats["benchmark"], stats["part"])
-    return rescore(predictions, data, stats["k"], threshold_m) | {"window_id": predictions["window_id"].to_numpy()}
-
-
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: K futures per test agent-window of one benchmark, and their metrics."""
     upstream = (inputs["windows"], inputs.get("forces"), inputs.get("cvae"), inputs.get("goals"))
@@ -296,17 +223,11 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool evaluate",
-    section=section,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="evaluate",
+    declare=declare,
     build=build,
-    description=lambda cfg, benchmark: f"evaluate ({benchmark})",
+    section="evaluate",
     per_benchmark=True,
-    needs=reads,
-    reads=lambda cfg: {"forces": forces_read(cfg)},
-    command_args=lambda cfg: (
-        (" --variant cv" if cfg.evaluate.predictor == "cv" else f" --variant {cfg.cvae.variant}")
-        + (f" --protocol {cfg.evaluate.protocol}" if reads_goal(cfg) else "")
-    ),
 )

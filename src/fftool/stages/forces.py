@@ -24,9 +24,11 @@ import torch
 
 from fftool.artifacts.schema import (
     AGENT_WINDOWS_FILE,
+    COMMANDS,
     FORCES_ARRAYS,
     FORCES_INDEX_FILE,
     TRACKS_FILE,
+    VERSIONS,
     WINDOWS_FILE,
 )
 from fftool.artifacts.store import Artifact
@@ -35,11 +37,9 @@ from fftool.errors import FftoolError
 from fftool.learning.batches import pair_budget_batches
 from fftool.science.groups import cluster_frames
 from fftool.science.social_forces import group_ids, window_forces
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "forces"
-VERSION: Final = 3  # 2: the time step is recorded (dt_s); 3: windows centred on a valid agent
-INPUTS: Final = ("tracks", "windows")
 # The force constants (ForcesConfig fields) each array depends on, so a consumer that reads some arrays
 # is fingerprinted on these alone (`view`): F_dr does not change with the field of view, F_re does not
 # change with tau. tests/test_fingerprints.py checks every entry by perturbing each constant.
@@ -316,19 +316,13 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
     )
 
 
-def view(params: Mapping[str, Any], arrays: tuple[str, ...]) -> dict[str, Any]:
-    """The constants the given arrays depend on (`ARRAY_PARAMS`): what a consumer of only those hashes."""
-    used = frozenset().union(*(ARRAY_PARAMS[name] for name in arrays))
-    return {name: value for name, value in params.items() if name in used}
-
-
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool forces",
-    section=lambda cfg: cfg.forces,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="social forces",
+    declare=lambda cfg: Reads(params=("forces.*",), artifacts={"tracks": None, "windows": None}),
     build=build,
-    description=lambda cfg, benchmark: "social forces",
-    view=view,
+    section="forces",
+    parts=ARRAY_PARAMS,
 )

@@ -14,10 +14,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-import numpy as np
 import torch
 
-from fftool.artifacts.schema import GOAL_LOG_FILE, GOAL_MODEL_FILE
+from fftool.artifacts.schema import COMMANDS, GOAL_LOG_FILE, GOAL_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import GoalConfig, GoalsConfig, PipelineConfig
 from fftool.learning import distributed
@@ -32,14 +31,18 @@ from fftool.learning.training import (
     optimizer_step,
     save_checkpoint,
     seed_all,
+    validation_subset,
 )
 from fftool.models import GoalUNet
 from fftool.science.heatmaps import world_to_cells
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "goal"
-VERSION: Final = 1
-INPUTS: Final = ("windows", "maps")
+# Validation picks the best epoch by goal-FDE@K of goals drawn as `sample-goals` draws them: these settings
+# of the goals section steer which weights are kept, so they are part of the goal model's fingerprint.
+VALIDATION_SAMPLING: Final = tuple(
+    f"goals.{key}" for key in ("k", "method", "temperature", "threshold", "samples", "kmeans_iterations")
+)
 
 
 @dataclass
@@ -131,8 +134,7 @@ def _trainer(
     train = load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
     val = load_agent_windows(windows, benchmark, "val")
     if cfg.val_max and len(val) > cfg.val_max:
-        keep = np.sort(np.random.default_rng(cfg.seed).choice(len(val), cfg.val_max, replace=False))
-        val = val.subset(keep)
+        val = val.subset(validation_subset(len(val), cfg.val_max, cfg.seed))
     scene_maps = load_scene_maps(maps).to(device)
     model = build_model(cfg, input_channels(cfg, obs_len, scene_maps.channels)).to(device)
     optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
@@ -163,10 +165,8 @@ def train(
     """
     benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.out_dir
     trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
-    started = time.perf_counter()
-    progress = fit(
-        trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=f"val_goal_fde@{goals_cfg.k}_m", log_name=GOAL_LOG_FILE
-    )
+    started, best_by = time.perf_counter(), f"val_goal_fde@{goals_cfg.k}_m"
+    progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=GOAL_LOG_FILE)
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,
         {
@@ -177,21 +177,11 @@ def train(
             "best_epoch": progress.best_epoch,
         },
     )
-    return {
-        "benchmark": benchmark,
-        "device": str(device),
-        "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
-        "world_size": distributed.world_size(),  # torchrun ranks (docs/scaling.md); results depend on it too
-        "backend": distributed.backend(),
+    return progress.stats(benchmark, device, best_by, time.perf_counter() - started) | {
         "train_agent_windows": len(trainer.train_xy),
         "train_per_epoch": trainer.per_epoch,
         "val_agent_windows": len(trainer.val),
-        "best_epoch": progress.best_epoch,
-        f"best_val_goal_fde@{goals_cfg.k}_m": progress.best_metric,
         "epochs": cfg.epochs,
-        "resumed_from_epoch": progress.start_epoch,
-        "seconds_this_run": time.perf_counter() - started,
-        "log": progress.log,
     }
 
 
@@ -202,12 +192,12 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool train-goal",
-    section=lambda cfg: cfg.goal,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="train goal U-Net",
+    declare=lambda cfg: Reads(params=("goal.*", *VALIDATION_SAMPLING), artifacts={"windows": None, "maps": None}),
     build=build,
-    description=lambda cfg, benchmark: f"train goal U-Net ({benchmark})",
+    section="goal",
     per_benchmark=True,
     distributed=True,
 )

@@ -16,19 +16,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.artifacts.schema import CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE
+from fftool.artifacts.schema import COMMANDS, CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import GoalsConfig, PipelineConfig
 from fftool.learning.batches import load_agent_windows, load_scene_maps
-from fftool.learning.goal_model import load_model, predict_goals
+from fftool.learning.goal_model import goal_batches, load_model
 from fftool.learning.protocols import constant_velocity
 from fftool.learning.training import generator
 from fftool.science.metrics import goal_fde
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "goals"
-VERSION: Final = 1
-INPUTS: Final = ("goal", "windows", "maps")
 
 
 def sample(
@@ -57,14 +55,10 @@ def sample(
     for part in cfg.parts:
         data = load_agent_windows(windows, benchmark, part)
         scene = scene_maps.index_of_sources(data.source)
-        batch = 256
         fde = {"goal_k": [], "goal_1": [], "cv_1": [], "cv_k": []}
-        for start in range(0, len(data), batch):
-            xy = torch.as_tensor(data.xy[start : start + batch], dtype=torch.float32, device=device)
+        batches = goal_batches(model, data, scene, scene_maps, goal_cfg, cfg, gen, obs_len, pred_len, device, 256)
+        for done, xy, goals in batches:
             obs, truth = xy[:, :obs_len], xy[:, -1]
-            goals = predict_goals(
-                model, obs, scene[start : start + batch].to(device), scene_maps, goal_cfg, cfg, gen, pred_len
-            )
             cv = constant_velocity(obs[:, None], pred_len, cfg.k, cfg.cv_angle_std_deg, cfg.cv_speed_std, gen)
             cv = cv[:, :, 0, -1]  # (B, K, 2): each sample's end point
             for prefix, values in (("goal", goals), ("cv", cv)):
@@ -74,7 +68,7 @@ def sample(
             all_goals.append(goals.cpu().numpy())
             all_cv.append(cv.cpu().numpy())
             if on_progress:
-                on_progress(part, min(start + batch, len(data)), len(data))
+                on_progress(part, done, len(data))
         index.append(
             pa.table(
                 {
@@ -107,11 +101,11 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool sample-goals",
-    section=lambda cfg: cfg.goals,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="sample goals",
+    declare=lambda cfg: Reads(params=("goals.*",), artifacts={"goal": None, "windows": None, "maps": None}),
     build=build,
-    description=lambda cfg, benchmark: f"sample goals ({benchmark})",
+    section="goals",
     per_benchmark=True,
 )

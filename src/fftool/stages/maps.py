@@ -24,17 +24,15 @@ import cv2
 import numpy as np
 
 from fftool.artifacts.hashing import sha256_file
-from fftool.artifacts.schema import MAPS_TRANSFORMS_FILE, map_check_file, map_file
+from fftool.artifacts.schema import COMMANDS, MAPS_TRANSFORMS_FILE, VERSIONS, map_check_file, map_file
 from fftool.artifacts.store import Artifact
 from fftool.config import MapsConfig, PipelineConfig
 from fftool.dataset.custom import load_dataset
 from fftool.dataset.scene_images import SceneImage, apply_homography, read_homography, read_image, read_scene
 from fftool.dataset.scenes import SCENES
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "maps"
-VERSION: Final = 1
-INPUTS: Final = ()
 _FILES = ("reference.png", "world_to_pixel.txt", "obstacle_map.png")
 
 
@@ -276,17 +274,19 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
     return rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.out_dir)
 
 
+def declare(cfg: PipelineConfig) -> Reads:
+    """The raster settings and the scene images and homographies by content (a dataset's, or ETH/UCY's)."""
+    data = cfg.data
+    scenes = load_dataset(data.dataset).scene_hashes() if data.dataset else scene_input_hashes(Path(data.scenes_dir))
+    return Reads(params=("maps.*",), raw_files=scenes, locations=("data.scenes_dir", "data.dataset"))
+
+
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool maps",
-    section=lambda cfg: cfg.maps,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="scene maps",
+    declare=declare,
     build=build,
-    description=lambda cfg, benchmark: "scene maps",
-    external_inputs=lambda cfg: (
-        load_dataset(cfg.data.dataset).scene_hashes()
-        if cfg.data.dataset
-        else scene_input_hashes(Path(cfg.data.scenes_dir))
-    ),
+    section="maps",
 )

@@ -16,18 +16,16 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fftool.artifacts.hashing import sha256_file
-from fftool.artifacts.schema import TRACKS_FILE, TRACKS_SCHEMA
+from fftool.artifacts.schema import COMMANDS, TRACKS_FILE, TRACKS_SCHEMA, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import IngestConfig, PipelineConfig
 from fftool.dataset.custom import Dataset, load_dataset, read_file, tracks_frame
 from fftool.dataset.rawfiles import RawTable, read_raw
 from fftool.dataset.scenes import SOURCES, SPLITS, raw_relpath
 from fftool.errors import RawDataError
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "tracks"
-VERSION: Final = 1
-INPUTS: Final = ()
 
 
 def raw_files(raw_dir: Path) -> dict[tuple[str, str], Path]:
@@ -184,15 +182,19 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
     )
 
 
+def declare(cfg: PipelineConfig) -> Reads:
+    """The ingest settings and the raw files by content (a dataset TOML's description and files, or ETH/UCY's)."""
+    data = cfg.data
+    raw = load_dataset(data.dataset).input_hashes() if data.dataset else raw_input_hashes(Path(data.raw_dir))
+    return Reads(params=("ingest.*",), raw_files=raw, locations=("data.raw_dir", "data.dataset"))
+
+
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool ingest",
-    section=lambda cfg: cfg.ingest,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="ingest raw files",
+    declare=declare,
     build=build,
-    description=lambda cfg, benchmark: "ingest raw files",
-    external_inputs=lambda cfg: (
-        load_dataset(cfg.data.dataset).input_hashes() if cfg.data.dataset else raw_input_hashes(Path(cfg.data.raw_dir))
-    ),
+    section="ingest",
 )

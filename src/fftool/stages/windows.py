@@ -17,17 +17,23 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from fftool.artifacts.schema import AGENT_WINDOWS_FILE, TRACKS_FILE, WINDOWS_FILE, WINDOWS_SCHEMA, agent_windows_schema
+from fftool.artifacts.schema import (
+    AGENT_WINDOWS_FILE,
+    COMMANDS,
+    TRACKS_FILE,
+    VERSIONS,
+    WINDOWS_FILE,
+    WINDOWS_SCHEMA,
+    agent_windows_schema,
+)
 from fftool.artifacts.store import Artifact
 from fftool.config import PipelineConfig, WindowsConfig
 from fftool.dataset.scenes import BENCHMARKS, LEAVE_ONE_OUT, PARTS
 from fftool.dataset.windowing import SequenceWindows, slice_sequence
 from fftool.errors import FftoolError
-from fftool.stages.contract import Stage, StageContext
+from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "windows"
-VERSION: Final = 1
-INPUTS: Final = ("tracks",)
 
 
 def slice_all(cfg: WindowsConfig, tracks: Artifact, out_dir: Any) -> dict[str, Any]:
@@ -155,10 +161,10 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 
 STAGE = Stage(
     NAME,
-    VERSION,
-    INPUTS,
-    command="fftool ingest",
-    section=lambda cfg: cfg.windows,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="windows",
+    declare=lambda cfg: Reads(params=("windows.*",), artifacts={"tracks": None}),
     build=build,
-    description=lambda cfg, benchmark: "windows",
+    section="windows",
 )
