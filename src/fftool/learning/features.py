@@ -21,7 +21,7 @@ from torch import Tensor
 from fftool.config import ForcesConfig
 from fftool.learning.batches import SceneBatch
 from fftool.models.forceformer import StepFeatures
-from fftool.science.social_forces import desired_direction, driving_force, group_pairs, social_forces
+from fftool.science.social_forces import desired_direction, driving_force, group_pairs, repulsive_force
 
 FEATURE_DIMS: Final = {"baseline": 4, "goal": 8, "dr": 6, "re": 10}
 # The arrays of the forces artifact each variant reads (fftool.stages.forces.ARRAY_PARAMS: the force
@@ -151,11 +151,8 @@ def decoder_features(
             direction, defined = desired_direction(pos, goal, forces_cfg.goal_min_distance_m)
             force = driving_force(velocity, direction, defined & mask, speed0, forces_cfg.tau_s)
         else:
-            present = mask[:, :, None]
-            _, f_re = social_forces(
-                pos[:, :, None], present, goal, velocity[:, :, None], speed0[:, :, None], groups, forces_cfg
-            )
-            force = f_re[:, :, 0]
+            force = repulsive_force(pos[:, :, None], mask[:, :, None], goal, velocity[:, :, None], groups, forces_cfg)
+            force = force[:, :, 0]
         return torch.cat(_step_features(variant, pos, goal, force), -1)
 
     return features

@@ -371,7 +371,10 @@ class ForceFormer(nn.Module):
         p = self.prior(agent_context)
         steps = target.shape[2]
         recon = self.decode(q.sample(generator), last_pos, tokens, agent_mask, steps, features, last_step=last_step)
-        samples = self.sample(p, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator)
+        # The prior is applied once more for the samples: the same values, and the gradients then add up in the
+        # order fftool's first trainings used, so their weights repeat bit for bit.
+        prior = self.prior(agent_context)
+        samples = self.sample(prior, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator)
         return cvae_loss(recon, target, q, p, samples, agent_mask, kl_min)
 
     def sample(

@@ -185,13 +185,48 @@ def social_forces(
         heading: (B, N) bool; agents whose goal is unknown (neighbours that are not valid) use their
             velocity direction as e for the ellipse and feel no force. Default: every goal is known.
     """
-    N = position.shape[1]  # position: (B, N, T, 2)
+    direction, defined = _directions(position, goal, velocity, cfg, heading)
+    f_dr = driving_force(velocity, direction, defined & present, speed0, cfg.tau_s)
+    return f_dr, _repulsion(position, present, velocity, direction, defined, groups, cfg)
+
+
+def repulsive_force(
+    position: Tensor,
+    present: Tensor,
+    goal: Tensor,
+    velocity: Tensor,
+    groups: Tensor,
+    cfg: ForcesConfig,
+    heading: Tensor | None = None,
+) -> Tensor:
+    """F_re (B, N, T, 2) alone, as `social_forces` computes it: what the re decoder recomputes at every step
+    (it reads none of the driving force's constants, so its model is not keyed on them)."""
+    direction, defined = _directions(position, goal, velocity, cfg, heading)
+    return _repulsion(position, present, velocity, direction, defined, groups, cfg)
+
+
+def _directions(
+    position: Tensor, goal: Tensor, velocity: Tensor, cfg: ForcesConfig, heading: Tensor | None
+) -> tuple[Tensor, Tensor]:
+    """Each agent's desired direction e toward its goal and where it is defined (see `social_forces`)."""
     direction, defined = desired_direction(position, goal[:, :, None, :], cfg.goal_min_distance_m)
     if heading is not None:
         direction = torch.where(heading[:, :, None, None], _unit(velocity), direction)
         defined = defined & ~heading[:, :, None]
-    f_dr = driving_force(velocity, direction, defined & present, speed0, cfg.tau_s)
+    return direction, defined
 
+
+def _repulsion(
+    position: Tensor,
+    present: Tensor,
+    velocity: Tensor,
+    direction: Tensor,
+    defined: Tensor,
+    groups: Tensor,
+    cfg: ForcesConfig,
+) -> Tensor:
+    """The field-of-view weighted elliptical repulsion of every other present agent outside one's group."""
+    N = position.shape[1]  # position: (B, N, T, 2)
     pos_t, e_t = position.transpose(1, 2), direction.transpose(1, 2)  # (B, T, N, 2)
     r_ab = pos_t[:, :, :, None, :] - pos_t[:, :, None, :, :]  # (B, T, N, N, 2)
     f_ab = pair_repulsion(
@@ -208,8 +243,7 @@ def social_forces(
     not_self = ~torch.eye(N, dtype=torch.bool, device=position.device)
     interacts = present_t[..., :, None] & present_t[..., None, :] & not_self & ~groups[:, None]
     f_re = ((weight * interacts)[..., None] * f_ab).sum(dim=-2)  # (B, T, N, 2)
-    f_re = f_re.transpose(1, 2) * (defined & present)[..., None]
-    return f_dr, f_re
+    return f_re.transpose(1, 2) * (defined & present)[..., None]
 
 
 @dataclass(frozen=True)
