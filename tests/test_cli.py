@@ -140,3 +140,10 @@ def test_top_level_help_does_not_import_torch_or_pyarrow() -> None:
         "Example: fftool ingest"
         in subprocess.run([sys.executable, "-m", "fftool", "--help"], capture_output=True, text=True, check=True).stdout
     )
+
+
+def test_version() -> None:
+    from fftool import __version__
+
+    result = CliRunner().invoke(app, ["--version"])
+    assert result.exit_code == 0 and result.output.strip() == f"fftool {__version__}"

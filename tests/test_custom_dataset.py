@@ -53,6 +53,7 @@ def test_the_simulator_is_deterministic_for_a_seed() -> None:
     assert 0.5 < speed.median() < 2.0 and speed.max() < 3.0
 
 
+@pytest.mark.slow
 def test_reproduce_runs_on_the_simulated_dataset(crowd: Path, tmp_path: Path) -> None:
     profile = tmp_path / "tiny.toml"
     profile.write_text(TINY_DATASET_PIPELINE.format(dataset=str(crowd)))

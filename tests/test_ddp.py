@@ -34,6 +34,8 @@ from fftool.stages import cvae, goal
 from .conftest import make_raw_tree
 from .test_maps import make_scene
 
+pytestmark = pytest.mark.slow  # forked torchrun ranks
+
 WORLD = 2
 CPU = torch.device("cpu")
 CVAE = CVAEConfig(

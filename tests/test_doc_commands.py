@@ -43,6 +43,8 @@ import pytest
 from fftool.artifacts.store import ArtifactStore
 from tests.doc_fixtures import ROOT, DocRun, code_blocks, doc_files, label, make_checkout, parse, stages_by_cell
 
+pytestmark = pytest.mark.slow  # the docs' commands, each a real `fftool` process
+
 DOCUMENTS = {path: parse(path) for path in doc_files()}
 CASES = [
     pytest.param(path, index, id=f"{label(path)}:{example.line}")
@@ -171,6 +173,7 @@ fftool ingest --raw "$WHERE" --no-such-option
 
 ```python
 from pathlib import Path
+
 
 assert Path("pipelines/quick.toml").is_file()  # run in the checkout
 ```

@@ -55,6 +55,7 @@ def _predicted(out: Path, n: int) -> np.ndarray:
     return frame[["x", "y"]].to_numpy().reshape(n, 20, 12, 2)
 
 
+@pytest.mark.slow
 @pytest.mark.data
 def test_predict_on_real_zara1_gives_evaluates_numbers(tmp_path: Path) -> None:
     if not REAL_RAW.is_dir():
@@ -185,3 +186,23 @@ def test_units_and_frame_columns(tmp_path: Path) -> None:
     assert np.allclose(tracks["x"], [0, 0.4, 0.8]) and np.allclose(tracks["time_s"], [0, 0.4, 0.8])
     with pytest.raises(RawDataError, match="unknown unit 'ft'"):
         read_tracks(path, units="ft")
+
+
+def test_the_api_refuses_a_model_of_another_schema_version(tiny_model: tuple[Path, str], tmp_path: Path) -> None:
+    """api.load checks the manifest's schema version against the one this fftool reads (it once compared the
+    manifest's version with itself), and names the command that rebuilds it."""
+    import json
+    import shutil
+
+    from fftool.errors import SchemaError
+
+    root, model_id = tiny_model
+    store = ArtifactStore(root)
+    copy = tmp_path / "store"
+    shutil.copytree(store.resolve(model_id).path, copy / "cvae" / store.resolve(model_id).path.name)
+    manifest = copy / "cvae" / store.resolve(model_id).path.name / "manifest.json"
+    data = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps(data | {"schema_version": data["schema_version"] + 1}))
+    with pytest.raises(SchemaError, match="fftool train-cvae --force"):
+        load(manifest.parent)
+    assert load(store.resolve(model_id).path).variant == "baseline"  # the untouched folder loads

@@ -22,6 +22,8 @@ from fftool.reporting import ablation
 from tests.test_maps import make_scene
 from tests.test_reproduce import TINY_PIPELINE
 
+pytestmark = pytest.mark.slow  # worker processes and a Dask cluster
+
 
 @pytest.fixture
 def profile(raw_tree: Path, tmp_path: Path) -> Path:

@@ -28,18 +28,60 @@ from fftool.cli.app import (
     open_store,
 )
 
+SeedsOption = Annotated[
+    str | None,
+    typer.Option(
+        "--seeds",
+        help="Comma-separated grid seeds (report.seeds): every cell is trained and evaluated once per seed "
+        "(each sets the goal, goals, cvae, dlow and evaluate seeds; seed 0 reuses the default cells); tables show "
+        "mean ±sd over seeds, results.csv every seed.",
+        show_default=False,
+    ),
+]
+JobsOption = Annotated[
+    int,
+    typer.Option(
+        "--jobs",
+        "-j",
+        min=1,
+        help="Stage builds to run at once, each in its own worker process, in dependency order "
+        "(default 1: one after another in this process). Artifacts and tables are the same as with one job.",
+    ),
+]
+ThreadsOption = Annotated[
+    int | None,
+    typer.Option(
+        "--threads",
+        min=1,
+        help="Torch threads per build. Default: the CPU cores shared out among --jobs (jobs × threads ≤ cores); "
+        "with one job, torch's own choice (one per core, or OMP_NUM_THREADS).",
+        show_default=False,
+    ),
+]
+SchedulerOption = Annotated[
+    str | None,
+    typer.Option(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="A Dask scheduler (tcp://host:8786) whose workers run the builds (pip install 'fftool[cluster]'); "
+        "the artifact root must be on a filesystem every worker sees (docs/scaling.md).",
+        show_default=False,
+    ),
+]
+PipelineArgument = Annotated[
+    Path | None,
+    typer.Argument(
+        metavar="PIPELINE",
+        exists=True,
+        dir_okay=False,
+        help="A profile in pipelines/ (or -c). Default: the built-in defaults (the paper's configuration).",
+        show_default=False,
+    ),
+]
+
 
 def reproduce(
-    pipeline_file: Annotated[
-        Path | None,
-        typer.Argument(
-            metavar="PIPELINE",
-            exists=True,
-            dir_okay=False,
-            help="A profile in pipelines/ (or -c). Default: the built-in defaults (the paper's configuration).",
-            show_default=False,
-        ),
-    ] = None,
+    pipeline_file: PipelineArgument = None,
     benchmarks: OptionalBenchmarks = None,
     variants: VariantsOption = None,
     protocol: ProtocolOption = None,
@@ -48,46 +90,10 @@ def reproduce(
     set_: SetOption = None,
     root: RootOption = None,
     out: OutOption = None,
-    seeds: Annotated[
-        str | None,
-        typer.Option(
-            "--seeds",
-            help="Comma-separated grid seeds (report.seeds): every cell is trained and evaluated once per seed "
-            "(each sets the goal, goals, cvae and evaluate seeds; seed 0 reuses the default cells); tables show "
-            "mean ±sd over seeds, results.csv every seed.",
-            show_default=False,
-        ),
-    ] = None,
-    jobs: Annotated[
-        int,
-        typer.Option(
-            "--jobs",
-            "-j",
-            min=1,
-            help="Stage builds to run at once, each in its own worker process, in dependency order "
-            "(default 1: one after another in this process). Artifacts and tables are the same as with one job.",
-        ),
-    ] = 1,
-    threads: Annotated[
-        int | None,
-        typer.Option(
-            "--threads",
-            min=1,
-            help="Torch threads per build. Default: the CPU cores shared out among --jobs (jobs × threads ≤ cores); "
-            "with one job, torch's own choice (one per core, or OMP_NUM_THREADS).",
-            show_default=False,
-        ),
-    ] = None,
-    scheduler: Annotated[
-        str | None,
-        typer.Option(
-            "--scheduler",
-            metavar="ADDRESS",
-            help="A Dask scheduler (tcp://host:8786) whose workers run the builds (pip install 'fftool[cluster]'); "
-            "the artifact root must be on a filesystem every worker sees (docs/scaling.md).",
-            show_default=False,
-        ),
-    ] = None,
+    seeds: SeedsOption = None,
+    jobs: JobsOption = 1,
+    threads: ThreadsOption = None,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """The whole DAG from raw files to Tables II-VI (md, csv, tex) and figures; built stages are reused.
 
