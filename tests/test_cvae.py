@@ -53,6 +53,7 @@ def _train(inputs: dict, tmp_path: Path, name: str, cfg: CVAEConfig, on_progress
     return cvae.train(cfg, ForcesConfig(), inputs["windows"], inputs["forces"], ctx)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", ["baseline", "goal", "dr", "re"])
 def test_every_variant_trains_and_reloads(inputs: dict, tmp_path: Path, variant: str) -> None:
     stats = _train(inputs, tmp_path, variant, TINY.model_copy(update={"variant": variant}))
@@ -80,6 +81,7 @@ def test_features_follow_the_variant(inputs: dict) -> None:
     torch.testing.assert_close(turned.to_world(turned.future_pos), batch.xy[:, :, 8:] * 1.0, atol=1e-4, rtol=0)
 
 
+@pytest.mark.slow
 def test_an_interrupted_run_resumes_to_the_same_weights(inputs: dict, tmp_path: Path) -> None:
     cfg = TINY.model_copy(update={"epochs": 3, "variant": "re"})
     _train(inputs, tmp_path, "reference", cfg)
@@ -99,6 +101,7 @@ def test_an_interrupted_run_resumes_to_the_same_weights(inputs: dict, tmp_path: 
         torch.testing.assert_close(ref[key], res[key])
 
 
+@pytest.mark.slow
 def test_the_cli_trains_a_variant(raw_tree: Path, tmp_path: Path) -> None:
     root = str(tmp_path / "artifacts")
     common = ["--root", root, "--set", f"data.raw_dir={str(raw_tree)!r}"]
@@ -148,6 +151,7 @@ def test_a_batched_step_is_the_mean_of_per_window_steps(inputs: dict, monkeypatc
         torch.testing.assert_close(grad, torch.stack([g[i] for _, g in singles]).mean(0), atol=1e-5, rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_loss_decreases_and_a_seeded_run_repeats_exactly(inputs: dict, tmp_path: Path) -> None:
     # "The same numbers" holds for the same machine, torch version and thread count (manifest `environment`).
     cfg = TINY.model_copy(update={"epochs": 4, "variant": "dr"})
@@ -162,6 +166,7 @@ def test_loss_decreases_and_a_seeded_run_repeats_exactly(inputs: dict, tmp_path:
     assert all(torch.equal(a[key], b[key]) for key in a)
 
 
+@pytest.mark.slow
 def test_bf16_precision_runs_products_in_bfloat16_and_keeps_losses_float32(inputs: dict, tmp_path: Path) -> None:
     scenes = load_scene_set(inputs["windows"], inputs["forces"], "zara1", "train")
     prepared = prepare(scenes.batch(np.arange(4)), "re", 8)
@@ -181,6 +186,7 @@ def test_bf16_precision_runs_products_in_bfloat16_and_keeps_losses_float32(input
     assert losses["bf16"] == pytest.approx(losses["fp32"], rel=0.05)  # the same model, coarser products
 
 
+@pytest.mark.slow
 def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
     cfg = TINY.model_copy(update={"compile": True})
     torch.manual_seed(0)
@@ -205,6 +211,7 @@ def test_learning_rate_schedules_follow_the_step_budget() -> None:
     assert step == [1.0, 1.0, 0.5, 0.25, 0.0625]  # StepLR(step_size=10, gamma=0.5), stepped per epoch
 
 
+@pytest.mark.slow
 def test_a_cpu_recipe_builds_trains_and_logs(inputs: dict, tmp_path: Path) -> None:
     """Every recipe option at once on a tiny model: trains, follows its schedule, writes TensorBoard events."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -221,8 +228,34 @@ def test_a_cpu_recipe_builds_trains_and_logs(inputs: dict, tmp_path: Path) -> No
     events.Reload()
     assert [e.value for e in events.Scalars("val_min_ade@3_m")] == pytest.approx([r["val_min_ade@3_m"] for r in log])
     assert {"train_recon", "train_kl", "train_best_of_k", "lr"} <= set(events.Tags()["scalars"])
+    seen = {"train_kl_unclamped", "val_kl_unclamped", "val_posterior_mean_ade", "val_posterior_mean_fde", "val_cv_ade",
+            "val_cv_fde", "val_prior_spread_m", "val_z_sensitivity_m"}  # fmt: skip
+    assert seen <= set(events.Tags()["scalars"]) and seen <= set(log[0])
+    assert all(row["train_kl"] >= TINY.kl_min - 1e-6 for row in log)  # the clamped KL never reads below kl_min,
+    assert any(row["train_kl_unclamped"] < TINY.kl_min for row in log)  # the unclamped one does
 
 
+def test_the_latent_diagnostics_are_computed_as_documented(inputs: dict) -> None:
+    """Constant velocity's ADE on validation equals a direct computation; a decoder blind to z has zero
+    z-sensitivity and zero prior spread."""
+    cfg = TINY.model_copy(update={"output": "cv_residual"})
+    val = load_scene_set(inputs["windows"], inputs["forces"], "zara1", "val", reads=())
+    subset = cvae_model.val_windows(val, cfg)
+    torch.manual_seed(0)
+    model = cvae_model.build_model(cfg).eval()
+    torch.nn.init.zeros_(model.out.weight)  # the residual head outputs 0: every sample is constant velocity
+    found = cvae_model.validate(model, val, subset, cfg, None, None, 8, torch.device("cpu"))
+    assert found["z_sensitivity_m"] == pytest.approx(0.0, abs=1e-6) and found["prior_spread_m"] == pytest.approx(
+        0.0, abs=1e-5
+    )
+    assert found["posterior_mean_ade"] == pytest.approx(found["cv_ade"], rel=1e-5)
+    xy = val.data.xy[np.isin(np.searchsorted(val.window_start, np.arange(len(val.data)), side="right") - 1, subset)]
+    steps = np.arange(1, 13)[None, :, None]
+    cv = xy[:, 7:8] + steps * (xy[:, 7:8] - xy[:, 6:7])
+    assert found["cv_ade"] == pytest.approx(float(np.linalg.norm(cv - xy[:, 8:], axis=-1).mean()), rel=1e-4)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncated", "another model"])
 def test_a_damaged_resume_checkpoint_is_set_aside_and_the_build_starts_over(
     inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damage: str

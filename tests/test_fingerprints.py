@@ -2,7 +2,7 @@
 
 The expectations are derived from the declarations (a cell's fingerprint depends on its declared keys and,
 through each upstream artifact it reads, on that artifact's keys or on the keys of the parts it reads); an
-independent perturbation of every configuration field then measures which of the DAG's 20 cells change.
+independent perturbation of every configuration field then measures which of the DAG's 24 cells change.
 That builds read no undeclared key is enforced at run time (contract.ConfigView) and tested here too.
 """
 
@@ -30,9 +30,13 @@ CELLS = [(stage, None, "paper", stage) for stage in ("tracks", "windows", "force
 CELLS += [(f"cvae[{v}]", v, "paper", "cvae") for v in ("baseline", "goal", "dr", "re")]
 CELLS += [(f"evaluate[{p},{protocol}]", p, protocol, "evaluate")
           for p in ("cv", "baseline", "goal", "dr", "re") for protocol in ("paper", "oracle")]  # fmt: skip
+# The DLow sampler over a CVAE, and evaluations drawing through one ("+dlow": dlow.variants holds the variant).
+CELLS += [("dlow[baseline]", "baseline", "paper", "dlow"), ("dlow[re]", "re", "paper", "dlow"),
+          ("evaluate[baseline+dlow,paper]", "baseline+dlow", "paper", "evaluate"),
+          ("evaluate[dr+dlow,paper]", "dr+dlow", "paper", "evaluate")]  # fmt: skip
 # Fields that choose a cell rather than configure one (the variant, the predictor, the protocol); the paths
 # that say where raw files lie (Reads.locations) are left out as the declarations say.
-SELECTORS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol"}
+SELECTORS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol", "dlow.variants"}
 
 
 def _perturbed(section: BaseModel, name: str) -> Any:
@@ -81,6 +85,9 @@ def _with(cfg: PipelineConfig, dotted: str) -> PipelineConfig:
 
 
 def _cell(cfg: PipelineConfig, predictor: str | None, protocol: str) -> PipelineConfig:
+    if predictor is not None and predictor.endswith("+dlow"):
+        predictor = predictor.removesuffix("+dlow")
+        cfg = cfg.model_copy(update={"dlow": cfg.dlow.model_copy(update={"variants": (predictor,)})})
     cell = cfg if predictor is None else predictor_config(cfg, predictor)
     return cell.model_copy(update={"evaluate": cell.evaluate.model_copy(update={"protocol": protocol})})
 
@@ -151,6 +158,9 @@ def test_the_declarations_say_what_the_stages_read(base: PipelineConfig) -> None
     assert "forces.fov_deg" in expected["cvae[re]"] and "forces.fov_deg" not in expected["cvae[dr]"]
     assert "evaluate.cv_angle_std_deg" in expected["evaluate[cv,paper]"]
     assert "evaluate.cv_angle_std_deg" not in expected["evaluate[dr,paper]"]
+    assert not any(key.startswith("dlow.") for key in expected["evaluate[dr,paper]"])
+    assert "dlow.lr" in expected["evaluate[dr+dlow,paper]"] and "dlow.diverse_weight" not in expected["dlow[re]"]
+    assert "cvae.lr" in expected["dlow[re]"] and "forces.fov_deg" in expected["dlow[re]"]
 
 
 @pytest.mark.parametrize("dotted", VALIDATION_SAMPLING)
@@ -166,10 +176,16 @@ def test_what_the_issue_named(base: PipelineConfig) -> None:
     baseline, goal and constant-velocity cells."""
     before, after = _fingerprints(base), _fingerprints(_with(base, "forces.fov_deg"))
     moved = {label for label in before if before[label] != after[label]}
-    assert moved == {"forces", "cvae[re]", "evaluate[re,paper]", "evaluate[re,oracle]"}
+    assert moved == {"forces", "cvae[re]", "evaluate[re,paper]", "evaluate[re,oracle]", "dlow[re]"}
     for dotted in (f for f in _fields(base) if f.startswith("forces.")):
         after = _fingerprints(_with(base, dotted))
-        for label in ("cvae[baseline]", "cvae[goal]", "evaluate[cv,paper]", "evaluate[baseline,paper]"):
+        for label in (
+            "cvae[baseline]",
+            "cvae[goal]",
+            "evaluate[cv,paper]",
+            "evaluate[baseline,paper]",
+            "dlow[baseline]",
+        ):
             assert after[label] == before[label], (label, dotted)
 
 

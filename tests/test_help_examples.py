@@ -44,6 +44,8 @@ from fftool.cli import app
 from fftool.config import load_config
 from tests.doc_fixtures import BLOCK_TIMEOUT_S, ROOT, make_checkout, shell_env, tail
 
+pytestmark = pytest.mark.slow  # every --help example, each a real `fftool` process
+
 # Commands in the order their examples run: each reads what the ones above it built.
 ORDER = [
     "fftool fetch-data",  # not run (internet); make_checkout places the synthetic tree where it would
@@ -55,6 +57,7 @@ ORDER = [
     "fftool train-goal",
     "fftool sample-goals",
     "fftool train-cvae",
+    "fftool train-dlow",  # over the dr CVAE train-cvae built
     "fftool evaluate",
     "fftool predict",  # reads the dr model train-cvae built, and the checkout's tracks.csv and goals.csv
     "fftool reproduce",

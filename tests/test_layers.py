@@ -58,7 +58,8 @@ def test_the_layout_is_the_documented_one() -> None:
         "artifacts", "dataset", "science", "models", "learning", "stages", "reporting", "cli",
     }  # fmt: skip
     assert {
-        f"stages.{kind}" for kind in ("tracks", "windows", "forces", "maps", "goal", "goals", "cvae", "evaluate")
+        f"stages.{kind}"
+        for kind in ("tracks", "windows", "forces", "maps", "goal", "goals", "cvae", "dlow", "evaluate")
     } == STAGES
 
 

@@ -41,6 +41,11 @@ epochs = 1
 train_k = 2
 val_max_windows = 4
 
+[dlow]
+epochs = 1
+qnet_hidden = [8]
+val_max_windows = 4
+
 [evaluate]
 k = 20
 
@@ -50,6 +55,7 @@ variants = ["dr"]
 """
 
 
+@pytest.mark.slow
 def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Path) -> None:
     make_scene(tmp_path / "scenes" / "zara1")
     profile = tmp_path / "tiny.toml"

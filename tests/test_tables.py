@@ -81,3 +81,10 @@ def test_the_paired_table_subtracts_replicates_of_the_same_resamples() -> None:
     assert row["method"] == "ForceFormer-Re" and row["zara1"] == "-5.0 [-5.0, -5.0]"
     assert "ΔCOL" in set(t6.frame["metric"]) and "ΔCol-II" in set(t6.frame["metric"])
     assert "$\\Delta$NC" in tables.latex(t6)
+
+
+def test_rows_say_how_a_cvae_drew_its_samples() -> None:
+    """With a DLow sampler in the grid, each CVAE row names its sampler; without one, the names are the paper's."""
+    grid = tables.Grid({}, 0.95, frozenset({"baseline"}))
+    assert grid.method("baseline") == "AgentFormer (DLow)" and grid.method("dr") == "ForceFormer-Dr (CVAE samples)"
+    assert grid.method("cv") == "constant velocity" and tables.Grid({}, 0.95).method("baseline") == "AgentFormer"

@@ -27,9 +27,11 @@ from fftool.errors import FftoolError, UsageError
 from fftool.learning import devices, goal_model
 from fftool.learning.batches import SceneMaps
 from fftool.learning.cvae_model import Trained, load_model
+from fftool.learning.dlow_model import load_sampler
 from fftool.learning.observed import padded_batch, scene_set
 from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
 from fftool.learning.training import generator
+from fftool.models.dlow import QNet
 from fftool.paper import reads_goal
 
 
@@ -51,6 +53,7 @@ class Model:
     obs_len: int
     pred_len: int
     device: torch.device
+    sampler: QNet | None = None  # a DLow sampler of this CVAE: its K codes replace the prior's draws
 
     @property
     def variant(self) -> str:
@@ -63,7 +66,9 @@ class Model:
 
     def predictor(self, k: int, seed: int, protocol: str = "oracle", sampled: np.ndarray | None = None) -> Predictor:
         cfg = EvaluateConfig(k=k, seed=seed, protocol=protocol)
-        return Predictor(cfg, self.trained, sampled, self.obs_len, self.pred_len, self.device)
+        if self.sampler is not None and self.sampler.k != k:
+            raise UsageError(f"this model's DLow sampler draws k = {self.sampler.k} futures per agent, not {k}")
+        return Predictor(cfg, self.trained, sampled, self.obs_len, self.pred_len, self.device, self.sampler)
 
     def predict(
         self, past: np.ndarray, agent_mask: np.ndarray, *, k: int = 20, goals: np.ndarray | None = None, seed: int = 0
@@ -93,14 +98,23 @@ class Model:
             return predictor(batch, goals_k).cpu().numpy()
 
 
-def load(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> Model:
-    """A trained CVAE from its artifact id (`cvae/3f9c2a`) or folder, on `device` (cpu, cuda)."""
+def load(
+    ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu", dlow: str | Path | None = None
+) -> Model:
+    """A trained CVAE from its artifact id (`cvae/3f9c2a`) or folder, on `device` (cpu, cuda); with `dlow` (a
+    `dlow` artifact trained over this CVAE) its K futures come from AgentFormer's DLow sampler."""
     store, artifact = find_artifact(ref, "cvae", root)
     chosen = devices.resolve(device)
     trained = load_model(artifact, chosen)
+    sampler = None
+    if dlow is not None:
+        _, sampler_artifact = find_artifact(dlow, "dlow", root)
+        if sampler_artifact.manifest.sources.get("cvae") != artifact.fingerprint:
+            raise UsageError(f"{dlow}: a DLow sampler trained over another CVAE than {artifact.id}")
+        sampler = load_sampler(sampler_artifact, chosen)
     windows = [a for a in store.chain(artifact) if isinstance(a, Artifact) and a.kind == "windows"]
     stats = windows[0].manifest.stats if windows else {"obs_len": 8, "pred_len": PRED_LEN}
-    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen)
+    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler)
 
 
 @dataclass(frozen=True)

@@ -218,7 +218,7 @@ class CVAEConfig(_Section):
     # step: lr × decay_gamma every decay_every epochs (AgentFormer). cosine: linear warm-up over the first
     # warmup_fraction of the optimizer steps, then a half cosine to 0 at the end of the last epoch. Both
     # are functions of the step count, never of wall-clock time.
-    schedule: Literal["step", "cosine"] = "step"
+    schedule: Literal["step", "cosine", "constant"] = "step"
     decay_every: int = Field(10, gt=0)
     decay_gamma: float = Field(0.5, gt=0, le=1)
     warmup_fraction: float = Field(0.0, ge=0, lt=1)
@@ -226,6 +226,9 @@ class CVAEConfig(_Section):
     batch_windows: int = Field(32, gt=0)  # windows per optimizer step at most (the official code: 1)
     max_agent_pairs: int = Field(4096, gt=0)  # and at most this many windows × agents² per step (memory)
     train_k: int = Field(20, gt=0)  # prior samples in the best-of-K loss during training
+    # fftool's option: the first epochs train the posterior's reconstruction and the KL alone, without the
+    # best-of-K term (a latent that learns to carry the future before the prior is pulled to spread; 0: off).
+    best_of_k_warmup_epochs: int = Field(0, ge=0)
     max_agents: int = Field(0, ge=0)  # cap agents per training window (AgentFormer eth: 32); 0 = none
     train_stride: int = Field(1, gt=0)  # use every n-th window start of the train part
     max_train_windows: int = Field(0, ge=0)  # per epoch, 0 = all
@@ -242,6 +245,44 @@ class CVAEConfig(_Section):
         if self.d_model % self.n_heads:
             raise _expected("n_heads", f"a divisor of d_model = {self.d_model}", self.n_heads)
         return self
+
+
+class DLowConfig(_Section):
+    """AgentFormer's second stage, the DLow sampler over a frozen CVAE (stage `dlow`, `fftool train-dlow`;
+    docs/cvae.md "DLow"). Defaults: AgentFormer's ETH/UCY DLow configs (cfg/eth_ucy/<ds>_agentformer.yml)."""
+
+    # The predictors whose evaluations draw their K futures through a DLow sampler; the others sample the
+    # CVAE's prior (AgentFormer's "before DLow"). Empty: no DLow anywhere (the default, fftool's CVAE path).
+    variants: tuple[Variant, ...] = ()
+    k: int = Field(20, gt=0)  # codes per agent (sample_k): evaluations draw exactly this many (evaluate.k)
+    qnet_hidden: tuple[Annotated[int, Field(gt=0)], ...] = (512, 256)  # qnet_mlp, tanh
+    share_eps: bool = True  # one ε for every agent and sample
+    train_w_mean: bool = True  # z = b in training and at test (A enters only through the KL)
+    recon_weight: float = Field(5.0, ge=0)
+    kl_weight: float = Field(0.1, ge=0)
+    kl_min: float = Field(10.0, ge=0)  # the KL's clamp (free bits), summed over the K codes
+    # agentformer: each ETH/UCY benchmark's own diversity weight and scale and LR schedule (eth 20/10, hotel
+    # 5/5, univ 10/10, zara1 5/5 with a linear schedule, zara2 5/5; a dataset of one's own takes zara1's);
+    # fixed: diverse_weight, d_scale and schedule below for every benchmark.
+    per_benchmark: Literal["agentformer", "fixed"] = "agentformer"
+    diverse_weight: float = Field(5.0, ge=0)
+    d_scale: float = Field(5.0, gt=0)
+    # step: lr × decay_gamma every decay_every epochs; linear: 1 for lr_fix_epochs, then down to ~0 at the
+    # last epoch (AgentFormer's LambdaLR); cosine: fftool's warm-up and half cosine over the step budget.
+    schedule: Literal["step", "linear", "cosine"] = "step"
+    decay_every: int = Field(5, gt=0)
+    decay_gamma: float = Field(0.5, gt=0, le=1)
+    lr_fix_epochs: int = Field(10, ge=0)
+    warmup_fraction: float = Field(0.0, ge=0, lt=1)
+    epochs: int = Field(50, gt=0)
+    lr: float = Field(1e-4, gt=0)  # Adam
+    grad_clip: float = Field(0.0, ge=0)  # 0 = none (AgentFormer)
+    batch_windows: int = Field(32, gt=0)  # windows per optimizer step at most (the official code: 1)
+    max_agent_pairs: int = Field(4096, gt=0)
+    train_stride: int = Field(1, gt=0)
+    max_train_windows: int = Field(0, ge=0)  # per epoch, 0 = all
+    val_max_windows: int = Field(200, ge=0)  # validation windows per epoch (0 = all); the best epoch is kept
+    seed: int = 0
 
 
 class EvaluateConfig(_ConstantVelocity):
@@ -290,6 +331,7 @@ class PipelineConfig(_Section):
     goal: GoalConfig = GoalConfig()
     goals: GoalsConfig = GoalsConfig()
     cvae: CVAEConfig = CVAEConfig()
+    dlow: DLowConfig = DLowConfig()
     evaluate: EvaluateConfig = EvaluateConfig()
     report: ReportConfig = ReportConfig()
 
@@ -297,7 +339,7 @@ class PipelineConfig(_Section):
 # What a grid seed sets: every stage whose result depends on random numbers of training or sampling. The
 # data stages (tracks, windows, forces) draw none and maps' k-means seed describes the scene, not a run, so
 # a seed leaves them, and their fingerprints, alone.
-SEEDED_SECTIONS: Final = ("goal", "goals", "cvae", "evaluate")
+SEEDED_SECTIONS: Final = ("goal", "goals", "cvae", "dlow", "evaluate")
 
 
 def seeded_config(cfg: PipelineConfig, seed: int) -> PipelineConfig:

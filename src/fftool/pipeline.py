@@ -30,7 +30,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import PipelineConfig, benchmark_names
 from fftool.errors import FftoolError, UsageError
 from fftool.learning import distributed
-from fftool.stages import cvae, evaluate, forces, goal, goals, maps, tracks, windows
+from fftool.stages import cvae, dlow, evaluate, forces, goal, goals, maps, tracks, windows
 from fftool.stages.contract import ConfigView, Reads, Stage, StageContext, allowed_keys
 from fftool.ui import log, progress, warn
 
@@ -43,7 +43,7 @@ class Runtime:
 
 
 STAGES: dict[str, Stage] = {
-    module.STAGE.name: module.STAGE for module in (tracks, windows, forces, maps, goal, goals, cvae, evaluate)
+    module.STAGE.name: module.STAGE for module in (tracks, windows, forces, maps, goal, goals, cvae, dlow, evaluate)
 }
 
 

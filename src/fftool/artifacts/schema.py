@@ -12,6 +12,9 @@ import pyarrow as pa
 
 # The schema version of each artifact kind: a reader refuses an artifact written under another one
 # (store.check_schema). forces 2: the time step is recorded (dt_s); 3: windows centred on a valid agent.
+# cvae 2: training batches are planned by the agents they carry (max_agents applied), and the log holds the
+# latent's diagnostics (unclamped KL, posterior-mean decode against constant velocity, prior spread, z
+# sensitivity).
 VERSIONS: Final[dict[str, int]] = {
     "tracks": 1,
     "windows": 1,
@@ -19,7 +22,8 @@ VERSIONS: Final[dict[str, int]] = {
     "maps": 1,
     "goal": 1,
     "goals": 1,
-    "cvae": 1,
+    "cvae": 2,
+    "dlow": 1,
     "evaluate": 1,
 }
 # The command that makes each kind, for messages that tell a user how to (re)build one.
@@ -31,6 +35,7 @@ COMMANDS: Final[dict[str, str]] = {
     "goal": "fftool train-goal",
     "goals": "fftool sample-goals",
     "cvae": "fftool train-cvae",
+    "dlow": "fftool train-dlow",
     "evaluate": "fftool evaluate",
 }
 
@@ -132,6 +137,10 @@ GOAL_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term and the v
 CVAE_MODEL_FILE: Final = "model.pt"  # {"state_dict", "config", "forces_config", "benchmark", "best_epoch", ...}
 CVAE_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term, validation minADE/minFDE
 TENSORBOARD_DIR: Final = "tensorboard"  # the same per-epoch rows as TensorBoard event files
+
+# --- dlow artifact (AgentFormer's DLow sampler over a trained cvae) --------------------------------------
+DLOW_MODEL_FILE: Final = "model.pt"  # {"state_dict", "d_model", "z_dim", "k", "hidden", "config", "best_epoch", ...}
+DLOW_LOG_FILE: Final = "log.csv"  # one row per epoch: every loss term, validation minADE/minFDE of the K codes
 
 # --- evaluate artifact (one predictor scored on one benchmark part) ------------------------------------
 # predictions.parquet: one row per valid agent-window in agent_windows order: window_id, ped_id,

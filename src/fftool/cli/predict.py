@@ -29,6 +29,12 @@ def _times(value: str) -> str | list[float]:
 def predict(
     tracks: Annotated[Path, typer.Argument(help="CSV or Parquet: a time (s) or frame column, agent id, x, y.")],
     model: Annotated[str, typer.Option("--model", help="Trained CVAE: artifact id (cvae/3f9c2a) or its folder.")],
+    dlow: Annotated[
+        str | None,
+        typer.Option(
+            "--dlow", help="A DLow sampler trained over that CVAE (dlow/…): its K codes instead of the prior."
+        ),
+    ] = None,
     out: Annotated[
         Path, typer.Option("--out", dir_okay=False, help="Parquet file of the futures (new, or fftool's own).")
     ] = Path("predictions.parquet"),
@@ -89,7 +95,7 @@ def predict(
     if (scene_image is None) != (homography is None):
         raise UsageError("--scene-image and --homography go together: the image and its world->pixel matrix")
     check_out(out)
-    chosen = load(model, root=root, device="cpu" if device == "auto" else device)
+    chosen = load(model, root=root, device="cpu" if device == "auto" else device, dlow=dlow)
     columns = Columns(time_col, agent_col, x_col, y_col)
     observed = read_tracks(tracks, columns, units, time_step, frame_step_s=chosen.step_s)
     per_agent = None
@@ -103,7 +109,15 @@ def predict(
     )  # fmt: skip
     for message in warnings:
         warn(message)
-    about = {"model": model, "k": k, "seed": seed, "at": at, "tracks": str(tracks), "variant": chosen.variant}
+    about = {
+        "model": model,
+        "dlow": dlow,
+        "k": k,
+        "seed": seed,
+        "at": at,
+        "tracks": str(tracks),
+        "variant": chosen.variant,
+    }
     write_predictions(table, out, about)
     agents = table.groupby("time_s")["agent"].nunique()
     log(f"wrote {out}: {k} samples for {int(agents.sum())} agent(s) at {len(agents)} time(s)")

@@ -181,6 +181,14 @@ def sample_goals(
     out_console.print(goal_fde_table(artifacts))
 
 
+VariantOption = Annotated[
+    str,
+    typer.Option(
+        "--variant", help="baseline (AgentFormer), goal, dr (driving force) or re (repulsive).", callback=check_variant
+    ),
+]
+
+
 @app.command(
     "train-cvae",
     epilog="Examples:\n\n  fftool train-cvae --benchmarks zara1 --variant dr --config pipelines/quick.toml\n\n"
@@ -191,14 +199,7 @@ def sample_goals(
 def train_cvae(
     benchmarks: BenchmarksOption = "zara1",
     old_benchmark: OldBenchmarkOption = None,
-    variant: Annotated[
-        str,
-        typer.Option(
-            "--variant",
-            help="baseline (AgentFormer), goal, dr (driving force) or re (repulsive).",
-            callback=check_variant,
-        ),
-    ] = "baseline",
+    variant: VariantOption = "baseline",
     device: DeviceOption = "auto",
     config: ConfigOption = None,
     set_: SetOption = None,
@@ -214,6 +215,33 @@ def train_cvae(
         built = run_stages(["cvae"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
         if leader():  # under torchrun, rank 0 alone prints
             out_console.print(training_table(built["cvae"], f"CVAE {variant} ({benchmark})"))
+
+
+@app.command(
+    "train-dlow",
+    epilog="Example: fftool train-dlow --benchmarks zara1 --variant dr --config pipelines/quick.toml",
+)
+@boundary
+def train_dlow(
+    benchmarks: BenchmarksOption = "zara1",
+    old_benchmark: OldBenchmarkOption = None,
+    variant: VariantOption = "baseline",
+    device: DeviceOption = "auto",
+    config: ConfigOption = None,
+    set_: SetOption = None,
+    root: RootOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Train AgentFormer's DLow sampler over a trained CVAE (frozen): K codes per agent, best by val minADE.
+
+    Evaluations of the variants in dlow.variants then draw their K futures from its codes (docs/cvae.md).
+    """
+    from fftool.reporting.summaries import training_table
+    from fftool.ui import out_console
+
+    for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+        built = run_stages(["dlow"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
+        out_console.print(training_table(built["dlow"], f"DLow over CVAE {variant} ({benchmark})"))
 
 
 @app.command(

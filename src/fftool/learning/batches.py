@@ -172,14 +172,18 @@ class SceneSet:
         """(W,) agents per window."""
         return np.diff(self.window_start)
 
-    def plan(self, order: np.ndarray, batch_windows: int, max_pairs: int, rng: np.random.Generator) -> list[np.ndarray]:
+    def plan(
+        self, order: np.ndarray, batch_windows: int, max_pairs: int, rng: np.random.Generator, max_agents: int = 0
+    ) -> list[np.ndarray]:
         """Cut windows (in the given order) into batches of similar agent counts.
 
         Attention cost grows with agents², so windows are sorted by agent count inside blocks of
         16 batches and cut where a batch would exceed `batch_windows` windows or `max_pairs` (windows ×
         largest agent count²); the batches are then shuffled, so the order stays random but padding small.
+        max_agents: the cap `batch` will apply (0: none), so a crowded window is planned as the agents it
+        will carry, not as its uncapped count.
         """
-        counts = self.agents()
+        counts = self.agents() if not max_agents else np.minimum(self.agents(), max_agents)
         batches: list[np.ndarray] = []
         block = 16 * batch_windows
         for start in range(0, len(order), block):

@@ -7,6 +7,7 @@ Shared by the `cvae` stage (training, validation), `evaluate` and `plot`, which 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -17,8 +18,9 @@ from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.learning.batches import SceneSet
 from fftool.learning.features import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features, prepare
-from fftool.learning.training import epoch_seed, generator, model_file, validation_subset
-from fftool.models.forceformer import ForceFormer, LossParts
+from fftool.learning.training import epoch_batches, generator, model_file, validation_subset
+from fftool.models.dlow import QNet
+from fftool.models.forceformer import ForceFormer, LossParts, kl_divergence
 from fftool.science.metrics import ade_fde
 
 
@@ -54,29 +56,35 @@ def sample(
     dt_s: float | None,
     k: int,
     generator_: torch.Generator | None = None,
+    sampler: QNet | None = None,
+    pick: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """K futures per agent from the prior: (B, K, A, Tf, 2) in the normalised frame."""
+    """K futures per agent, (B, K, A, Tf, 2) in the normalised frame: drawn from the prior, or, given a DLow
+    `sampler`, decoded from its K codes z = b (AgentFormer's test-time codes). `pick` (B,): each window
+    decodes only that code (the fair protocol's windows, one per goal), so K is 1."""
     with autocast(cfg, prepared.past.device):
         tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
-        return model.sample(
-            model.prior(agent_context),
-            tokens,
-            prepared.agent_mask,
-            prepared.past_pos[:, :, -1],
-            prepared.last_step,
-            prepared.future_pos.shape[2],
-            decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k),
-            k,
-            generator_,
-        )
+        steps = prepared.future_pos.shape[2]
+        where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
+        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
+        if sampler is None:
+            return model.sample(model.prior(agent_context), tokens, *where, features, k, generator_)
+        z = sampler(agent_context).b  # (B, A, K', Z)
+        if pick is not None:
+            z = z[torch.arange(len(z), device=z.device), :, pick][:, None]  # (B, 1, A, Z)
+        elif z.shape[2] != k:
+            raise ValueError(f"the DLow sampler draws {z.shape[2]} futures per agent, {k} were asked for")
+        else:
+            z = z.transpose(1, 2)  # (B, K, A, Z)
+        return model.decode_k(z.reshape(-1, *z.shape[2:]), tokens, *where, features, k)
 
 
 def epoch_plan(
     train: SceneSet, cfg: CVAEConfig, epoch: int, n_windows: int
 ) -> tuple[list[np.ndarray], np.random.Generator]:
-    """The batches of one epoch (seeded by (seed, epoch)) and the generator that goes on to draw agent caps."""
-    rng = np.random.default_rng(epoch_seed(cfg.seed, epoch))
-    return train.plan(rng.permutation(train.windows)[:n_windows], cfg.batch_windows, cfg.max_agent_pairs, rng), rng
+    """The batches of one epoch (seeded by (seed, epoch)) and the generator that goes on to draw agent caps,
+    each batch planned by the agents it will carry (at most cfg.max_agents per window)."""
+    return epoch_batches(train, cfg.seed, epoch, n_windows, cfg.batch_windows, cfg.max_agent_pairs, cfg.max_agents)
 
 
 def training_loss(
@@ -86,9 +94,11 @@ def training_loss(
     forces_cfg: ForcesConfig | None,
     dt_s: float | None,
     gen: torch.Generator,
+    best_of_k: bool = True,
 ) -> LossParts:
-    """AgentFormer's loss parts for one batch (posterior reconstruction, KL, best-of-train_k): the model's
-    forward, called through `net` (the model, or the model in DistributedDataParallel)."""
+    """AgentFormer's loss parts for one batch (posterior reconstruction, KL, best-of-train_k, or without the
+    last when `best_of_k` is False): the model's forward, called through `net` (the model, or the model in
+    DistributedDataParallel)."""
     with autocast(cfg, prepared.past.device):
         return net(
             prepared.past,
@@ -99,7 +109,7 @@ def training_loss(
             prepared.last_step,
             decoder_features(cfg.variant, prepared, forces_cfg, dt_s),
             decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=cfg.train_k),
-            cfg.train_k,
+            cfg.train_k if best_of_k else 0,
             cfg.kl_min,
             gen,
         )
@@ -127,6 +137,7 @@ def val_metrics(
     return ade / max(count, 1), fde / max(count, 1)
 
 
+@torch.no_grad()
 def validate(
     model: ForceFormer,
     scenes: SceneSet,
@@ -136,18 +147,56 @@ def validate(
     dt_s: float | None,
     obs_len: int,
     device: torch.device,
-) -> tuple[float, float]:
-    """The model's validation minADE_K / minFDE_K with K = cfg.k prior samples."""
+) -> dict[str, float]:
+    """The model's validation minADE_K / minFDE_K with K = cfg.k prior samples (`min_ade`, `min_fde`), and,
+    from the same pass, whether the latent carries the future (means over agents, metres):
+
+    posterior_mean_ade/fde: the future decoded from q(z | X, Y)'s mean, against cv_ade/fde, constant velocity on
+    the same agents (a latent that carries the future decodes better than a straight line); kl_unclamped: the
+    KL(q ‖ p) per agent before the free-bits clamp; prior_spread_m: the RMS distance of the K prior samples'
+    final points from their mean; z_sensitivity_m: how far the final point moves for one unit of z (the
+    prior's mean against the mean plus a fixed random unit vector per agent).
+    """
     model.eval()
-    gen = generator(cfg.seed, device)
-    return val_metrics(
-        scenes,
-        windows,
-        cfg,
-        obs_len,
-        device,
-        lambda prepared: sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen),
-    )
+    gen, unit_gen = generator(cfg.seed, device), generator(cfg.seed + 1, device)
+    names = ("min_ade", "min_fde", "posterior_mean_ade", "posterior_mean_fde", "cv_ade", "cv_fde", "kl_unclamped")
+    sums = dict.fromkeys((*names, "prior_spread_m", "z_sensitivity_m"), 0.0)
+    count = 0
+    for members in scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(0)):
+        prepared = prepare(scenes.batch(members).to(device), cfg.variant, obs_len)
+        mask, steps = prepared.agent_mask, prepared.future_pos.shape[2]
+        samples = sample(model, prepared, cfg, forces_cfg, dt_s, cfg.k, gen)  # (B, K, A, T, 2)
+        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s)
+        with autocast(cfg, device):
+            tokens, agent_context = model.encode_past(prepared.past, mask)
+            q, p = model.posterior(prepared.future, tokens, mask), model.prior(agent_context)
+            last, last_step = prepared.past_pos[:, :, -1], prepared.last_step
+            decode = partial(model.decode, last_pos=last, context=tokens, agent_mask=mask, steps=steps,
+                             features=features, last_step=last_step)  # fmt: skip
+            mean_q = decode(q.mu)[:, None]  # (B, 1, A, T, 2)
+            unit = torch.randn(p.mu.shape, generator=unit_gen, device=device)
+            moved = (decode(p.mu + unit / unit.norm(dim=-1, keepdim=True)) - decode(p.mu))[:, :, -1].norm(dim=-1)
+        steps_ahead = torch.arange(1, steps + 1, device=device, dtype=torch.float32)[None, None, :, None]
+        cv = (prepared.past_pos[:, :, -1:] + steps_ahead * prepared.last_step[:, :, None])[:, None]
+        finals = samples[:, :, :, -1]  # (B, K, A, 2)
+        spread = ((finals - finals.mean(1, keepdim=True)) ** 2).sum(-1).mean(1)  # (B, A) mean squared distance
+        sample_ade, sample_fde = ade_fde(samples, prepared.future_pos)  # (B, K, A)
+        per_agent = {
+            "min_ade": sample_ade.min(1).values,
+            "min_fde": sample_fde.min(1).values,
+            "kl_unclamped": kl_divergence(q, p),
+            "prior_spread_m": spread,
+            "z_sensitivity_m": moved,
+        }
+        for name, (ade, fde) in (("posterior_mean", ade_fde(mean_q, prepared.future_pos)),
+                                 ("cv", ade_fde(cv, prepared.future_pos))):  # fmt: skip
+            per_agent |= {f"{name}_ade": ade[:, 0], f"{name}_fde": fde[:, 0]}
+        for name, values in per_agent.items():
+            sums[name] += float((values * mask).sum())
+        count += int(mask.sum())
+    means = {name: value / max(count, 1) for name, value in sums.items()}
+    means["prior_spread_m"] = means["prior_spread_m"] ** 0.5  # RMS
+    return means
 
 
 def val_windows(scenes: SceneSet, cfg: CVAEConfig) -> np.ndarray:

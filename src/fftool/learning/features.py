@@ -31,6 +31,12 @@ TRAINING_READS: Final = {"baseline": (), "goal": (), "dr": ("f_dr", "speed0"), "
 SAMPLING_READS: Final = {"baseline": (), "goal": (), "dr": ("speed0",), "re": ("group_id", "speed0")}
 
 
+def training_inputs(variant: str) -> dict[str, tuple[str, ...] | None]:
+    """What training a variant's model reads (Reads.artifacts): the windows, and the forces arrays it trains on."""
+    arrays = TRAINING_READS[variant]
+    return {"windows": None, **({"forces": arrays} if arrays else {})}
+
+
 def uses_forces(variant: str) -> bool:
     """Whether a variant's inputs include a social force (dr, re): only those need force constants and a time step."""
     return bool(TRAINING_READS[variant])

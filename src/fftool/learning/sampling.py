@@ -18,6 +18,7 @@ from fftool.learning.cvae_model import Trained, sample
 from fftool.learning.features import prepare
 from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
 from fftool.learning.training import generator
+from fftool.models.dlow import QNet
 from fftool.paper import reads_goal
 
 # (batch, positions of its slots in the scene set's rows, -1 for padding) -> (B, K, A, 2) world goals
@@ -35,8 +36,11 @@ class Predictor:
         obs_len: int,
         pred_len: int,
         device: torch.device,
+        sampler: QNet | None = None,
     ) -> None:
+        """sampler: a DLow sampler of `trained` (its K codes replace the prior's draws), or None."""
         self.cfg, self.obs_len, self.pred_len, self.device = cfg, obs_len, pred_len, device
+        self.sampler = sampler
         self.sampled_goals = sampled_goals
         self.gen = generator(cfg.seed, device)
         self.model = None
@@ -68,14 +72,19 @@ class Predictor:
             past = batch.xy[:, :, :obs_len]
             return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
         B, _, A, _ = goals.shape
+        pick = None
         if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
             batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
+            if self.sampler is not None:  # sample j of a window decodes the sampler's code j
+                pick = torch.arange(k, device=self.device).repeat(B)
         else:
             goal, draws = goals[:, 0], k
         if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
             batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
         prepared = prepare(batch, self.variant, obs_len, goal=goal)
-        futures = sample(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen)
+        futures = sample(
+            self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick
+        )
         return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
 
 

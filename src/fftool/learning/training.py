@@ -24,6 +24,7 @@ from torch.utils.tensorboard import SummaryWriter
 from fftool.artifacts.schema import TENSORBOARD_DIR
 from fftool.errors import IntegrityError
 from fftool.learning import distributed
+from fftool.learning.batches import SceneSet
 from fftool.ui import warn
 
 # What loading a readable checkpoint into objects it does not fit raises (missing or extra keys, other
@@ -42,6 +43,22 @@ def validation_subset(n: int, most: int, seed: int) -> np.ndarray:
     if most and n > most:
         return np.sort(np.random.default_rng(seed).choice(n, most, replace=False))
     return np.arange(n)
+
+
+def epoch_batches(
+    scenes: SceneSet,
+    seed: int,
+    epoch: int,
+    n_windows: int,
+    batch_windows: int,
+    max_pairs: int,
+    max_agents: int = 0,
+) -> tuple[list[np.ndarray], np.random.Generator]:
+    """The batches of epoch `epoch` of a run seeded `seed` (`n_windows` random windows), and the generator
+    that goes on to draw agent caps; a function of (seed, epoch) alone, so a resumed run draws the same."""
+    rng = np.random.default_rng(epoch_seed(seed, epoch))
+    order = rng.permutation(scenes.windows)[:n_windows]
+    return scenes.plan(order, batch_windows, max_pairs, rng, max_agents), rng
 
 
 def epoch_seed(seed: int, epoch: int) -> int:
@@ -89,19 +106,24 @@ def lr_factor(
     epoch: int = 0,
     decay_every: int = 1,
     decay_gamma: float = 1.0,
+    epochs: int = 1,
+    fix_epochs: int = 0,
 ) -> float:
     """The learning-rate multiplier for optimizer step `step` (0-based) of a `total_steps` budget.
 
     A linear warm-up over the first round(warmup_fraction · total_steps) steps, then: constant (1);
-    step (decay_gamma ** (epoch // decay_every), torch's StepLR stepped once per epoch); or cosine (half
-    a cosine from 1 to 0 over the remaining steps). A function of the step count alone, so a run's
-    schedule never depends on how fast the machine is.
+    step (decay_gamma ** (epoch // decay_every), torch's StepLR stepped once per epoch); linear (1 for
+    `fix_epochs` epochs, then 1 - (epoch - fix_epochs) / (epochs - fix_epochs + 1): AgentFormer's LambdaLR);
+    or cosine (half a cosine from 1 to 0 over the remaining steps). A function of the step count alone, so
+    a run's schedule never depends on how fast the machine is.
     """
     warmup = round(warmup_fraction * total_steps)
     if step < warmup:
         return (step + 1) / warmup
     if schedule == "step":
         return decay_gamma ** (epoch // decay_every)
+    if schedule == "linear":
+        return 1.0 - max(0, epoch - fix_epochs) / float(epochs - fix_epochs + 1)
     if schedule == "constant":
         return 1.0
     return 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warmup) / max(1, total_steps - warmup))))

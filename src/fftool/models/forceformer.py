@@ -363,8 +363,9 @@ class ForceFormer(nn.Module):
 
         past, future: (B, A, Tp|Tf, F) encoder and posterior features; target: (B, A, Tf, 2) the positions to
         predict; last_pos, last_step: (B, A, 2) the last observed position and displacement; features and
-        features_k: the decoder's step features for one and for `k` samples per window (`decode`).
-        The posterior draw comes first, then the k prior draws, from `generator`.
+        features_k: the decoder's step features for one and for `k` samples per window (`decode`). k = 0 leaves
+        the best-of-K term out (a warm-up on the posterior's reconstruction and the KL alone). The posterior draw
+        comes first, then the k prior draws, from `generator`.
         """
         tokens, agent_context = self.encode_past(past, agent_mask)
         q = self.posterior(future, tokens, agent_mask)
@@ -373,8 +374,10 @@ class ForceFormer(nn.Module):
         recon = self.decode(q.sample(generator), last_pos, tokens, agent_mask, steps, features, last_step=last_step)
         # The prior is applied once more for the samples: the same values, and the gradients then add up in the
         # order fftool's first trainings used, so their weights repeat bit for bit.
-        prior = self.prior(agent_context)
-        samples = self.sample(prior, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator)
+        samples = None
+        if k:
+            prior = self.prior(agent_context)
+            samples = self.sample(prior, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator)
         return cvae_loss(recon, target, q, p, samples, agent_mask, kl_min)
 
     def sample(
@@ -390,9 +393,24 @@ class ForceFormer(nn.Module):
         generator: torch.Generator | None = None,
     ) -> Tensor:
         """k futures per agent drawn from `prior`: (B, k, A, steps, 2), the context shared by the k samples."""
-        B, A, _ = last_pos.shape
         rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
         z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator)
+        return self.decode_k(z, context, agent_mask, last_pos, last_step, steps, features_k, k)
+
+    def decode_k(
+        self,
+        z: Tensor,
+        context: Tensor,
+        agent_mask: Tensor,
+        last_pos: Tensor,
+        last_step: Tensor,
+        steps: int,
+        features_k: StepFeatures,
+        k: int,
+    ) -> Tensor:
+        """The futures (B, k, A, steps, 2) of the codes z (B·k, A, Z), window-major (repeat_interleave order)."""
+        B, A, _ = last_pos.shape
+        rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
         out = self.decode(
             z, rep(last_pos), context, rep(agent_mask), steps, features_k, repeat=k, last_step=rep(last_step)
         )
@@ -461,8 +479,9 @@ class ForceFormer(nn.Module):
 class LossParts(NamedTuple):
     total: Tensor
     recon: Tensor
-    kl: Tensor
+    kl: Tensor  # after the free-bits clamp: what the loss sees (it never reads below kl_min)
     best_of_k: Tensor
+    kl_unclamped: Tensor  # before it: what the posterior actually carries (logged, not optimised)
 
 
 def _per_window(values: Tensor, agent_mask: Tensor) -> Tensor:
@@ -480,7 +499,7 @@ def best_of_k(samples: Tensor, future: Tensor, agent_mask: Tensor) -> Tensor:
 
 
 def cvae_loss(
-    recon: Tensor, future: Tensor, q: Gaussian, p: Gaussian, samples: Tensor, agent_mask: Tensor, kl_min: float
+    recon: Tensor, future: Tensor, q: Gaussian, p: Gaussian, samples: Tensor | None, agent_mask: Tensor, kl_min: float
 ) -> LossParts:
     """AgentFormer's loss, all weights 1: squared error summed over time and xy, mean over agents; the
     window's mean KL clamped below at kl_min (free bits); best-of-K over prior samples.
@@ -489,8 +508,10 @@ def cvae_loss(
     the batch's windows: a batched step is the mean of the per-window steps.
     """
     recon_term = _per_window(((recon - future) ** 2).sum((-1, -2)), agent_mask)
-    kl_term = _per_window(kl_divergence(q, p), agent_mask).clamp_min(kl_min)
-    sample_term = best_of_k(samples, future, agent_mask)
+    kl_raw = _per_window(kl_divergence(q, p), agent_mask)
+    kl_term = kl_raw.clamp_min(kl_min)
+    sample_term = best_of_k(samples, future, agent_mask) if samples is not None else torch.zeros_like(kl_term)
     real = agent_mask.any(1)
     mean = lambda x: (x * real).sum() / real.sum().clamp_min(1)  # noqa: E731
-    return LossParts(mean(recon_term + kl_term + sample_term), mean(recon_term), mean(kl_term), mean(sample_term))
+    total = mean(recon_term + kl_term + sample_term)
+    return LossParts(total, mean(recon_term), mean(kl_term), mean(sample_term), mean(kl_raw.detach()))

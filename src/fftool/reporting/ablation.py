@@ -151,12 +151,20 @@ def caption(cfg: PipelineConfig, profile: str) -> str:
     report, ev = cfg.report, cfg.evaluate
     return (
         f"Ours: profile {profile}; goal protocol {ev.protocol!r} for goal, dr, re (baseline and cv read no goal); "
+        f"{_samplers(cfg)}; "
         f"K = {ev.k} samples; test part of each leave-one-out benchmark; NC at gamma = {ev.collision_threshold_m} m "
         f"over {report.collision_pairs} pairs of {report.collision_sample.replace('_', '-')} samples; {_seeds(cfg)}; "
         f"[low, high]: {report.confidence:.0%} percentile interval of a bootstrap over test windows "
         f"({report.bootstrap_resamples} resamples, seed {report.bootstrap_seed}). "
         "Paper: ForceFormer Tables II-IV (its goal protocol = ours 'paper')."
     )
+
+
+def _samplers(cfg: PipelineConfig) -> str:
+    dlow = [p for p in ("baseline", *cfg.report.variants) if p in cfg.dlow.variants]
+    if not dlow:
+        return "every CVAE's K samples drawn from its prior (no DLow)"
+    return f"K futures from a DLow sampler for {', '.join(dlow)}, from the CVAE's prior for the others"
 
 
 def _seeds(cfg: PipelineConfig) -> str:
@@ -216,7 +224,7 @@ def write_report(
     `out_dir` must have passed `check_report_folder`; it is checked again here, just before the swap.
     """
     scored, rows = scores.score(store, results, cfg.report, cfg.evaluate.collision_threshold_m)
-    grid, text = tables.Grid(scored, cfg.report.confidence), caption(cfg, profile)
+    grid, text = tables.Grid(scored, cfg.report.confidence, frozenset(cfg.dlow.variants)), caption(cfg, profile)
     counts = 1 if len(grid_seeds(cfg)) > 1 else 0  # a mean over seeds of counts has a decimal
     built = [
         tables.table2(grid, text),

@@ -40,6 +40,14 @@ class Grid:
 
     scores: Scores
     level: float
+    dlow: frozenset[str] = frozenset()  # the predictors whose K futures come from a DLow sampler
+
+    def method(self, predictor: str) -> str:
+        """A row's name, saying how a CVAE drew its samples when the grid has a DLow sampler anywhere:
+        "AgentFormer (DLow)" against "ForceFormer-Dr (CVAE samples)" (the caption says so when it has none)."""
+        if predictor == "cv" or not self.dlow:
+            return PAPER_NAMES[predictor]
+        return f"{PAPER_NAMES[predictor]} ({'DLow' if predictor in self.dlow else 'CVAE samples'})"
 
     @property
     def scenes(self) -> list[str]:
@@ -97,8 +105,8 @@ def table2(grid: Grid, caption: str) -> Table:
     """minADE/minFDE per scene and their average, ours and the paper's side by side."""
     shown, data = [], []
     for predictor in grid.predictors:
-        row: dict[str, str] = {"method": PAPER_NAMES[predictor]}
-        numeric: dict[str, float | str] = {"method": PAPER_NAMES[predictor]}
+        row: dict[str, str] = {"method": grid.method(predictor)}
+        numeric: dict[str, float | str] = {"method": grid.method(predictor)}
         for scene in grid.columns("average"):
             ade, fde = (grid.get(scene, predictor, m, "average") for m in ("min_ade", "min_fde"))
             row[scene] = f"{cell(ade, 3, grid.level)} / {cell(fde, 3, grid.level)}" if ade is not None else ""
@@ -123,8 +131,8 @@ def _scalar_table(
     shown, data = [], []
     get = score_of or (lambda scene, predictor, metric: grid.get(scene, predictor, metric, total))
     for predictor in predictors or grid.predictors:
-        row: dict[str, str] = {"method": PAPER_NAMES[predictor]}
-        numeric: dict[str, float | str] = {"method": PAPER_NAMES[predictor]}
+        row: dict[str, str] = {"method": grid.method(predictor)}
+        numeric: dict[str, float | str] = {"method": grid.method(predictor)}
         for scene in grid.columns(total):
             for metric, (label, digits) in metrics.items():
                 name = f"{scene} {label}".rstrip()
@@ -186,7 +194,7 @@ def table6(grid: Grid, caption: str, reference: str = "baseline") -> Table:
         for frame, into in ((shown, rows_shown), (data, rows_data)):
             frame.insert(1, "metric", f"Δ{label}")
             into.append(frame.rename(columns=lambda c, t=total: c.replace(t, "all scenes", 1)))  # average or sum
-    title = f"Table VI: paired differences, variant minus {PAPER_NAMES[reference]} (same windows, same seeds)"
+    title = f"Table VI: paired differences, variant minus {grid.method(reference)} (same windows, same seeds)"
     return Table("table6_paired", title, pd.concat(rows_shown), caption, pd.concat(rows_data))
 
 

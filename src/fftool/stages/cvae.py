@@ -30,7 +30,7 @@ from fftool.config import CVAEConfig, ForcesConfig, PipelineConfig
 from fftool.learning import distributed
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import build_model, epoch_plan, training_loss, val_windows, validate
-from fftool.learning.features import TRAINING_READS, prepare
+from fftool.learning.features import TRAINING_READS, prepare, training_inputs
 from fftool.learning.training import (
     epoch_seed,
     fit,
@@ -87,7 +87,7 @@ class _Trainer:
         tic = time.perf_counter()
         gen = generator(distributed.rank_seed(epoch_seed(cfg.seed, epoch)), device)
         plan, rng = epoch_plan(self.train, cfg, epoch, self.per_epoch)
-        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0}
+        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0, "kl_unclamped": 0.0}
         agents, weight = 0, 1.0  # weight: this rank's share of the global batch's mean loss
         for step, members in enumerate(plan):
             batch = self.train.batch(members, cfg.max_agents, rng)
@@ -96,7 +96,8 @@ class _Trainer:
                 mine, share = distributed.shard(members)
                 batch, weight = batch.map(partial(_rows, torch.as_tensor(mine))), share / distributed.world_size()
             prepared = prepare(batch.to(device), cfg.variant, self.obs_len, rotate=cfg.rotate, generator=gen)
-            parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen)
+            warm = epoch < cfg.best_of_k_warmup_epochs  # fftool's option: the posterior first, then the full loss
+            parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
             total = parts.total * share if distributed.active() else parts.total
             factor = lr_factor(
                 cfg.schedule,
@@ -125,10 +126,15 @@ class _Trainer:
     def validate(self) -> dict[str, float]:
         """minADE_K and minFDE_K of the fixed validation subset."""
         cfg = self.cfg
-        ade, fde = validate(
+        found = validate(
             self.model, self.val, self.val_subset, cfg, self.forces_cfg, self.dt_s, self.obs_len, self.device
         )
-        return {f"val_min_ade@{cfg.k}_m": ade, f"val_min_fde@{cfg.k}_m": fde}
+        ade, fde = found.pop("min_ade"), found.pop("min_fde")
+        return {
+            f"val_min_ade@{cfg.k}_m": ade,
+            f"val_min_fde@{cfg.k}_m": fde,
+            **{f"val_{k}": v for k, v in found.items()},
+        }
 
 
 def _trainer(
@@ -205,12 +211,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The cvae section, the windows and, for dr and re, the forces arrays the variant trains on."""
     variant = cfg.cvae.variant
-    arrays = TRAINING_READS[variant]
-    return Reads(
-        params=("cvae.*",),
-        artifacts={"windows": None, **({"forces": arrays} if arrays else {})},
-        command=f" --variant {variant}",
-    )
+    return Reads(params=("cvae.*",), artifacts=training_inputs(variant), command=f" --variant {variant}")
 
 
 STAGE = Stage(

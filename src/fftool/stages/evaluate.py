@@ -30,6 +30,7 @@ from fftool.config import EvaluateConfig, PipelineConfig
 from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch, SceneSet, load_scene_set
 from fftool.learning.cvae_model import load_model
+from fftool.learning.dlow_model import load_sampler
 from fftool.learning.features import SAMPLING_READS
 from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
 from fftool.paper import reads_goal
@@ -77,6 +78,8 @@ def declare(cfg: PipelineConfig) -> Reads:
     arrays = SAMPLING_READS[predictor]
     artifacts: dict[str, tuple[str, ...] | None] = {"windows": None, **({"forces": arrays} if arrays else {})}
     artifacts["cvae"] = None
+    if predictor in cfg.dlow.variants:  # AgentFormer's test-time sampler over that CVAE
+        artifacts["dlow"] = None
     if goal and cfg.evaluate.protocol != "oracle":
         artifacts["goals"] = None
     return Reads(
@@ -134,8 +137,10 @@ def sample_and_score(
     out_dir: Path,
     device: torch.device,
     on_progress: Callable[[str, int, int], None] | None = None,
+    dlow: Artifact | None = None,
 ) -> dict[str, Any]:
-    """Sample, score and save every valid agent-window of the benchmark's evaluation part."""
+    """Sample, score and save every valid agent-window of the benchmark's evaluation part (through the DLow
+    sampler `dlow` of the CVAE when given one, else from the CVAE's prior)."""
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
     reads = SAMPLING_READS[cvae.manifest.params["variant"]] if cvae is not None else ()
@@ -145,7 +150,13 @@ def sample_and_score(
         raise FftoolError(_no_agent_windows(benchmark, cfg.part, obs_len + pred_len))
     sampled = load_sampled_goals(goals, scenes, benchmark, cfg.part) if goals is not None else None
     trained = load_model(cvae, device) if cvae is not None else None
-    predictor = Predictor(cfg, trained, sampled, obs_len, pred_len, device)
+    sampler = load_sampler(dlow, device) if dlow is not None else None
+    if sampler is not None and sampler.k != cfg.k:
+        raise FftoolError(
+            f"the DLow sampler {dlow.id} draws {sampler.k} futures per agent, evaluate.k is {cfg.k}: "
+            f"set dlow.k = evaluate.k and rebuild it with `fftool train-dlow`"
+        )
+    predictor = Predictor(cfg, trained, sampled, obs_len, pred_len, device, sampler)
     plan = plan_batches(scenes, cfg)
 
     def scored(batch: SceneBatch, goals_k: torch.Tensor, futures: torch.Tensor) -> dict[str, Any]:
@@ -171,6 +182,7 @@ def sample_and_score(
     columns["window_id"], columns["ped_id"] = scenes.data.window_id[position], scenes.data.ped_id[position]
     pq.write_table(_predictions_table(columns, cfg.k, pred_len), out_dir / PREDICTIONS_FILE)
     return summary(columns, cfg, benchmark, predictor.variant, predictor.protocol) | {
+        "sampler": "dlow" if sampler is not None else ("cvae prior" if trained is not None else "constant velocity"),
         "windows": scenes.windows,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),  # results depend on it (float summation order)
@@ -218,7 +230,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
     """The stage contract: K futures per test agent-window of one benchmark, and their metrics."""
     upstream = (inputs["windows"], inputs.get("forces"), inputs.get("cvae"), inputs.get("goals"))
     args = (cfg.evaluate, ctx.need_benchmark(), *upstream, ctx.out_dir, ctx.device())
-    return sample_and_score(*args, on_progress=ctx.on_progress)
+    return sample_and_score(*args, on_progress=ctx.on_progress, dlow=inputs.get("dlow"))
 
 
 STAGE = Stage(

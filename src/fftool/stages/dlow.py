@@ -1,0 +1,198 @@
+"""Train AgentFormer's DLow sampler (its second stage) over a trained CVAE of one benchmark and variant.
+
+Reads: the `cvae` artifact (frozen, in eval mode: no dropout, no scene rotation, no agent cap), windows and,
+for dr and re, the forces arrays the CVAE trained on (training goals are the ground truth, as in the CVAE's
+training). Writes: `dlow/<fp>/model.pt` (the Q-net's best weights by validation minADE of its K codes),
+`log.csv` and the same curves as TensorBoard events. Run: `fftool train-dlow --benchmarks zara1 --variant
+baseline`. `evaluate`, `predict` and the API then draw their K futures from its codes z = b instead of the
+prior (AgentFormer's test-time sampler; docs/cvae.md "DLow").
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+import torch
+
+from fftool.artifacts.schema import COMMANDS, DLOW_LOG_FILE, DLOW_MODEL_FILE, VERSIONS
+from fftool.artifacts.store import Artifact
+from fftool.config import DLowConfig, PipelineConfig
+from fftool.learning.batches import SceneSet, load_scene_set
+from fftool.learning.cvae_model import Trained, load_model, sample, val_metrics
+from fftool.learning.dlow_model import Preset, build_sampler, preset, training_loss
+from fftool.learning.features import TRAINING_READS, prepare, training_inputs
+from fftool.learning.training import (
+    epoch_batches,
+    epoch_seed,
+    fit,
+    generator,
+    lr_factor,
+    optimizer_step,
+    save_checkpoint,
+    seed_all,
+    validation_subset,
+)
+from fftool.models.dlow import QNet
+from fftool.stages.contract import Reads, Stage, StageContext
+
+NAME: Final = "dlow"
+# The dlow keys a build reads: all but `variants` (which evaluations use a sampler) and, with AgentFormer's
+# per-benchmark settings, the fixed ones those replace.
+_FIXED: Final = frozenset({"diverse_weight", "d_scale", "schedule"})
+
+
+@dataclass
+class _Trainer:
+    """The DLow half of `training.fit`: epochs of batched windows through the frozen CVAE under DLow's loss,
+    and the validation minADE/minFDE of the K codes, whose minADE picks the best epoch."""
+
+    cfg: DLowConfig
+    chosen: Preset
+    trained: Trained
+    model: QNet  # what `fit` trains and checkpoints: the sampler alone
+    optimizer: torch.optim.Optimizer
+    train: SceneSet
+    val: SceneSet
+    val_subset: np.ndarray
+    obs_len: int
+    per_epoch: int
+    device: torch.device
+    first_steps: list[int] = field(init=False)
+
+    def __post_init__(self) -> None:
+        steps = [len(self._plan(epoch)[0]) for epoch in range(self.cfg.epochs)]
+        self.first_steps = [0, *itertools.accumulate(steps)]
+
+    def _plan(self, epoch: int) -> tuple[list[np.ndarray], np.random.Generator]:
+        cfg = self.cfg
+        return epoch_batches(self.train, cfg.seed, epoch, self.per_epoch, cfg.batch_windows, cfg.max_agent_pairs)
+
+    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
+        cfg, device, variant = self.cfg, self.device, self.trained.config.variant
+        tic = time.perf_counter()
+        gen = generator(epoch_seed(cfg.seed, epoch), device)
+        plan, _ = self._plan(epoch)
+        sums = {"loss": 0.0, "recon": 0.0, "diverse": 0.0, "kl": 0.0, "kl_unclamped": 0.0}
+        for step, members in enumerate(plan):
+            prepared = prepare(self.train.batch(members).to(device), variant, self.obs_len)
+            parts = training_loss(self.trained, self.model, prepared, cfg, self.chosen, gen)
+            factor = lr_factor(
+                self.chosen.schedule,
+                self.first_steps[epoch] + step,
+                self.first_steps[-1],
+                cfg.warmup_fraction,
+                epoch,
+                cfg.decay_every,
+                cfg.decay_gamma,
+                cfg.epochs,
+                cfg.lr_fix_epochs,
+            )
+            optimizer_step(self.model, self.optimizer, parts.total, cfg.lr * factor, cfg.grad_clip)
+            for name, value in zip(sums, parts):
+                sums[name] += value.item() / len(plan)
+            tick(step + 1, len(plan))
+        seconds = time.perf_counter() - tic
+        seen = previous or {"train_seconds": 0.0}
+        return {
+            "train_seconds": round(float(seen["train_seconds"]) + seconds, 3),
+            "lr": self.optimizer.param_groups[0]["lr"],
+            **{f"train_{name}": value for name, value in sums.items()},
+        }
+
+    def validate(self) -> dict[str, float]:
+        """minADE_K and minFDE_K of the K codes on the fixed validation subset (ground-truth goals)."""
+        self.model.eval()
+        model, cvae_cfg = self.trained.model, self.trained.config
+        forces_cfg, dt_s, k = self.trained.forces_config, self.trained.dt_s, self.cfg.k
+        ade, fde = val_metrics(
+            self.val,
+            self.val_subset,
+            cvae_cfg,
+            self.obs_len,
+            self.device,
+            lambda prepared: sample(model, prepared, cvae_cfg, forces_cfg, dt_s, k, sampler=self.model),
+        )
+        self.model.train()
+        return {f"val_min_ade@{k}_m": ade, f"val_min_fde@{k}_m": fde}
+
+
+def train(cfg: DLowConfig, windows: Artifact, forces: Artifact | None, cvae: Artifact, ctx: StageContext) -> dict:
+    """Train the sampler with validation every epoch; write the best weights and the log; the manifest stats."""
+    benchmark, device = ctx.need_benchmark(), ctx.device()
+    trained = load_model(cvae, device)
+    trained.model.requires_grad_(False)  # frozen, and in eval mode (load_model)
+    reads = TRAINING_READS[trained.config.variant]
+    train_set = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride, reads)
+    val = load_scene_set(windows, forces, benchmark, "val", reads=reads)
+    seed_all(cfg.seed)
+    sampler = build_sampler(trained.config, cfg).to(device)
+    trainer = _Trainer(
+        cfg=cfg,
+        chosen=preset(cfg, benchmark),
+        trained=trained,
+        model=sampler,
+        optimizer=torch.optim.Adam(sampler.parameters(), lr=cfg.lr),
+        train=train_set,
+        val=val,
+        val_subset=validation_subset(val.windows, cfg.val_max_windows, cfg.seed),
+        obs_len=int(windows.manifest.stats["obs_len"]),
+        per_epoch=min(train_set.windows, cfg.max_train_windows) if cfg.max_train_windows else train_set.windows,
+        device=device,
+    )
+    started, best_by = time.perf_counter(), f"val_min_ade@{cfg.k}_m"
+    progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=DLOW_LOG_FILE)
+    save_checkpoint(
+        ctx.out_dir / DLOW_MODEL_FILE,
+        {
+            "state_dict": progress.best_state,
+            "d_model": trained.config.d_model,
+            "z_dim": trained.config.z_dim,
+            "k": cfg.k,
+            "hidden": list(cfg.qnet_hidden),
+            "config": cfg.model_dump(mode="json"),
+            "benchmark": benchmark,
+            "best_epoch": progress.best_epoch,
+        },
+    )
+    return progress.stats(benchmark, device, best_by, time.perf_counter() - started) | {
+        "variant": trained.config.variant,
+        "preset": vars(trainer.chosen),
+        "train_windows": train_set.windows,
+        "train_windows_per_epoch": trainer.per_epoch,
+        "val_windows": len(trainer.val_subset),
+        "parameters": sum(p.numel() for p in sampler.parameters()),
+    }
+
+
+def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
+    """The stage contract: train one benchmark's DLow sampler over its CVAE of the configured variant."""
+    return train(cfg.dlow, inputs["windows"], inputs.get("forces"), inputs["cvae"], ctx)
+
+
+def declare(cfg: PipelineConfig) -> Reads:
+    """The dlow settings, the CVAE it samples and the data that CVAE trained on."""
+    variant = cfg.cvae.variant
+    unread = {"variants"} | (_FIXED if cfg.dlow.per_benchmark == "agentformer" else set())
+    params = tuple(f"dlow.{key}" for key in DLowConfig.model_fields if key not in unread)
+    return Reads(
+        params=params,
+        artifacts=training_inputs(variant) | {"cvae": None},
+        command=f" --variant {variant}",
+    )
+
+
+STAGE = Stage(
+    NAME,
+    VERSIONS[NAME],
+    COMMANDS[NAME],
+    label="train DLow",
+    declare=declare,
+    build=build,
+    section="dlow",
+    per_benchmark=True,
+)
