@@ -24,8 +24,9 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _cv_on_subset(cfg, store, benchmark: str, angle: float, speed: float) -> tuple[float, float]:
-    """Constant velocity's minADE/minFDE@K on the CVAE's validation subset, with the given noise."""
+def _cv_scorer(cfg, store, benchmark: str):
+    """Constant velocity's minADE/minFDE@K on the CVAE's validation subset, as a function of its noise (the
+    validation windows are read once)."""
     from fftool import pipeline
     from fftool.learning.batches import load_scene_set
     from fftool.learning.cvae_model import val_metrics, val_windows
@@ -34,13 +35,17 @@ def _cv_on_subset(cfg, store, benchmark: str, angle: float, speed: float) -> tup
 
     windows = pipeline.run(cfg, store, ["windows"])["windows"]
     val = load_scene_set(windows, None, benchmark, "val", reads=())
-    obs_len, k = int(windows.manifest.stats["obs_len"]), cfg.evaluate.k
-    gen = generator(cfg.evaluate.seed, torch.device("cpu"))
+    subset, obs_len, k = val_windows(val, cfg.cvae), int(windows.manifest.stats["obs_len"]), cfg.evaluate.k
 
-    def predict(prepared):  # in the window's frame: constant velocity is frame-free
-        return constant_velocity(prepared.past_pos, prepared.future_pos.shape[2], k, angle, speed, gen)
+    def score(angle: float, speed: float) -> tuple[float, float]:
+        gen = generator(cfg.evaluate.seed, torch.device("cpu"))
 
-    return val_metrics(val, val_windows(val, cfg.cvae), cfg.cvae, obs_len, torch.device("cpu"), predict)
+        def predict(prepared):  # in the window's frame: constant velocity is frame-free
+            return constant_velocity(prepared.past_pos, prepared.future_pos.shape[2], k, angle, speed, gen)
+
+        return val_metrics(val, subset, cfg.cvae, obs_len, torch.device("cpu"), predict)
+
+    return score
 
 
 def main() -> None:
@@ -78,9 +83,10 @@ def main() -> None:
             kept = min(log, key=lambda r: r[ade_key])
             best[(variant, name)] = (kept[ade_key], kept[fde_key], offset + log[-1]["train_seconds"] / 60)
     ev = base.evaluate
-    fftool_cv = _cv_on_subset(base, store, args.benchmark, ev.cv_angle_std_deg, ev.cv_speed_std)
+    cv_score = _cv_scorer(base, store, args.benchmark)
+    fftool_cv = cv_score(ev.cv_angle_std_deg, ev.cv_speed_std)
     grid = list(itertools.product((0.0, 5.0, 10.0, 15.0, 25.0), (0.0, 0.1, 0.2, 0.3)))
-    tuned = {noise: _cv_on_subset(base, store, args.benchmark, *noise) for noise in grid}
+    tuned = {noise: cv_score(*noise) for noise in grid}
     tuned_noise = min(tuned, key=lambda noise: tuned[noise][0])
 
     out.parent.mkdir(parents=True, exist_ok=True)

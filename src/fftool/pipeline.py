@@ -91,7 +91,8 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
         reads = stage.declare(cfg)
         for upstream in reads.artifacts:
             visit(upstream)
-        params = _record(cfg, stage, reads)
+        declared = allowed_keys(cfg, reads.params)
+        params = _record(cfg, stage, declared)
         if stage.per_benchmark:
             offered = benchmark_names(cfg)
             if benchmark not in offered:  # a usage error: the command line or profile named it (exit 2)
@@ -100,7 +101,7 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
             params["benchmark"] = benchmark
         ups = {up: resolved[up] for up in reads.artifacts}
         inputs = dict(_input_key(ups[up], parts) for up, parts in reads.artifacts.items()) | dict(reads.raw_files)
-        allowed = allowed_keys(cfg, reads.params) | allowed_keys(cfg, reads.locations)
+        allowed = declared | allowed_keys(cfg, reads.locations)
         for up, parts in reads.artifacts.items():
             if parts is not None and ups[up].stage.section:
                 allowed |= {f"{ups[up].stage.section}.{key}" for key in ups[up].stage.view_keys(parts)}
@@ -114,10 +115,9 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
     return list(resolved.values())
 
 
-def _record(cfg: PipelineConfig, stage: Stage, reads: Reads) -> dict[str, Any]:
-    """The declared configuration values as the fingerprint hashes them (Reads.params): the stage's own
-    section under bare names, its keys the build does not read at their defaults; other keys as section.key."""
-    declared = allowed_keys(cfg, reads.params)
+def _record(cfg: PipelineConfig, stage: Stage, declared: frozenset[str]) -> dict[str, Any]:
+    """The declared configuration values ("section.key", from Reads.params) as the fingerprint hashes them: the
+    stage's own section under bare names, its keys the build does not read at their defaults; others as is."""
     record: dict[str, Any] = {}
     if stage.section is not None:
         section = getattr(cfg, stage.section)
