@@ -71,3 +71,25 @@ def test_a_paired_difference_resamples_the_same_windows() -> None:
     low, high = percentile_interval(rep_a)
     assert high - low > 20
     assert percentile_interval(rep_b - rep_a) == (50.0, 50.0)
+
+
+def test_a_block_of_all_windows_draws_each_once_and_block_one_is_the_window_bootstrap() -> None:
+    whole = window_draws(5, 100, seed=1, block=5)  # one start only: every resample is the sample itself
+    assert (whole == 1).all()
+    np.testing.assert_array_equal(window_draws(9, 50, seed=2, block=1), window_draws(9, 50, seed=2))
+    blocks = window_draws(103, 400, seed=0, block=10)
+    assert (blocks.sum(1) == 103).all()  # 11 blocks of 10, the last one cut to 3
+
+
+def test_blocks_widen_the_interval_of_a_time_correlated_metric() -> None:
+    """A metric that drifts slowly over time (runs of 20 equal windows, as overlapping windows share their
+    steps): resampling single windows treats 1,000 windows as independent; blocks of 20 see 50 runs."""
+    rng = np.random.default_rng(0)
+    values = np.repeat(rng.normal(size=50), 20)  # (1000,) one value per window, constant over runs of 20
+    window = np.arange(1000)
+    widths = {}
+    for block in (1, 20):
+        means = replicate_means(window_draws(1000, 2000, seed=5, block=block), values, window)
+        low, high = percentile_interval(means)
+        widths[block] = high - low
+    assert widths[20] / widths[1] > 3  # about sqrt(20) ≈ 4.5: the effective sample is 50, not 1,000

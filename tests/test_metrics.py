@@ -160,3 +160,23 @@ def test_col_gt_compares_the_best_sample_with_the_neighbours_truth_between_steps
     m = agent_metrics(pred, truth, mask, 0.1)
     assert m.col_gt.tolist() == [[0, 1]]  # agent 1's path hits agent 0's truth; agent 0's path is its truth
     assert gt_collisions(truth, truth, torch.tensor([[True, False]])).sum() == 0  # padded neighbours do not count
+
+
+def test_joint_metrics_take_one_sample_index_for_the_whole_window() -> None:
+    """The worked example of science/metrics.py: errors (1 m, 3 m) and (3 m, 1 m) give minADE 1 m but JADE 2 m."""
+    truth = torch.zeros(1, 2, 12, 2)
+    truth[0, 1, :, 1] = 10.0  # far apart: no contacts
+    miss = torch.tensor([[1.0, 3.0], [3.0, 1.0]])  # (agent, sample) → metres off in x at every step
+    pred = truth[:, None].repeat(1, 2, 1, 1, 1)  # (1, K = 2, A = 2, T, 2)
+    pred[0, :, :, :, 0] += miss.T[:, :, None]
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    m = agent_metrics(pred, truth, mask, 0.1)
+    assert m.min_ade.tolist() == [[1.0, 1.0]] and m.min_fde.tolist() == [[1.0, 1.0]]
+    assert m.joint_ade.mean().item() == pytest.approx(2.0) and m.joint_fde.mean().item() == pytest.approx(2.0)
+    # Agent 0's sample 1 ends exactly on the truth: sample 1 now wins by FDE (0 + 1 < 1 + 3) but not by ADE
+    # (its ADE sum 3 - 3/12 + 1 = 3.75 < 4: it wins there too), so both joint minima move to sample 1.
+    pred[0, 1, 0, -1, 0] = 0.0
+    m = agent_metrics(pred, truth, mask, 0.1)
+    assert m.joint_fde.tolist() == [[0.0, 1.0]]
+    assert m.joint_ade[0].tolist() == pytest.approx([3.0 * 11 / 12, 1.0])
+    assert (m.joint_ade >= m.min_ade).all()  # agent-weighted JADE is never below minADE

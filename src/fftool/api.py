@@ -1,7 +1,7 @@
 """Use a trained ForceFormer in your own code: load it once, hand it observed positions, get K futures.
 
     from fftool.api import load
-    model = load("cvae/3f9c2a")                      # an artifact id, or the artifact's folder
+    model = load("cvae/3f9c2a")                      # an artifact id, its folder, or a shipped model: cpu/zara1/dr
     futures = model.predict(past, agent_mask, k=20)  # (B, A, 8, 2), (B, A) -> (B, K, A, 12, 2)
 
 `predict_tracks` does the same for a table of tracks (time, agent, x, y), as `fftool predict` does.
@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+from fftool import zoo
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import EvaluateConfig, GoalConfig, GoalsConfig
 from fftool.dataset.scenes import PRED_LEN
@@ -37,12 +38,32 @@ from fftool.paper import reads_goal
 
 def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> tuple[ArtifactStore, Artifact]:
     """An artifact of `kind` by id (`cvae/3f9c2a`, under `root` or the default root) or by its folder, checked
-    to be that kind at the schema version this fftool reads; with its store."""
+    to be that kind at the schema version this fftool reads and its files to be the ones it was built with;
+    with its store."""
     store, artifact = ArtifactStore.open(ref, root)
     if artifact.kind != kind:
         raise UsageError(f"{ref}: a {artifact.kind} artifact, expected a {kind} artifact")
     check_schema(artifact, kind)
+    store.check_inputs({kind: artifact})
     return store, artifact
+
+
+def _cvae_and_sampler(
+    ref: str | Path, root: Path | None, dlow: str | Path | None
+) -> tuple[ArtifactStore, Artifact, Artifact | None]:
+    """The CVAE artifact `ref` names, its store, and the DLow sampler to draw through: `dlow` when given, else,
+    for a shipped model's name, the one its profile evaluates it with."""
+    if zoo.is_name(ref):
+        bundle = zoo.find(str(ref))
+        store, cvae, sampler = zoo.store(str(ref).split("/")[0]), bundle.cvae, bundle.dlow
+    else:
+        store, cvae = find_artifact(ref, "cvae", root)
+        sampler = None
+    if dlow is not None:
+        _, sampler = find_artifact(dlow, "dlow", root)
+    if sampler is not None and sampler.manifest.sources.get("cvae") != cvae.fingerprint:
+        raise UsageError(f"{dlow}: a DLow sampler trained over another CVAE than {cvae.id}")
+    return store, cvae, sampler
 
 
 @dataclass(frozen=True)
@@ -101,17 +122,13 @@ class Model:
 def load(
     ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu", dlow: str | Path | None = None
 ) -> Model:
-    """A trained CVAE from its artifact id (`cvae/3f9c2a`) or folder, on `device` (cpu, cuda); with `dlow` (a
-    `dlow` artifact trained over this CVAE) its K futures come from AgentFormer's DLow sampler."""
-    store, artifact = find_artifact(ref, "cvae", root)
+    """A trained CVAE from its artifact id (`cvae/3f9c2a`), folder, or shipped name (`cpu/zara1/dr`, `fftool models
+    list`), on `device` (cpu, cuda); with `dlow` (a `dlow` artifact trained over this CVAE) its K futures come from
+    AgentFormer's DLow sampler, as they do for a shipped model its profile evaluates through one."""
+    store, artifact, sampler_artifact = _cvae_and_sampler(ref, root, dlow)
     chosen = devices.resolve(device)
     trained = load_model(artifact, chosen)
-    sampler = None
-    if dlow is not None:
-        _, sampler_artifact = find_artifact(dlow, "dlow", root)
-        if sampler_artifact.manifest.sources.get("cvae") != artifact.fingerprint:
-            raise UsageError(f"{dlow}: a DLow sampler trained over another CVAE than {artifact.id}")
-        sampler = load_sampler(sampler_artifact, chosen)
+    sampler = None if sampler_artifact is None else load_sampler(sampler_artifact, chosen)
     windows = [a for a in store.chain(artifact) if isinstance(a, Artifact) and a.kind == "windows"]
     stats = windows[0].manifest.stats if windows else {"obs_len": 8, "pred_len": PRED_LEN}
     return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler)
@@ -139,8 +156,14 @@ class GoalSampler:
 
 
 def load_goal_sampler(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> GoalSampler:
-    """A trained goal U-Net from its artifact id (`goal/3f9c2a`) or folder."""
-    _, artifact = find_artifact(ref, "goal", root)
+    """A trained goal U-Net from its artifact id (`goal/3f9c2a`) or folder, or the one shipped with a goal
+    variant's model (`cpu/zara1/dr`: its benchmark's)."""
+    if zoo.is_name(ref):
+        artifact = zoo.find(str(ref)).goal
+        if artifact is None:
+            raise UsageError(f"{ref}: a variant that reads no goal, shipped without a goal U-Net")
+    else:
+        _, artifact = find_artifact(ref, "goal", root)
     net, cfg = goal_model.load_model(artifact, devices.resolve(device))
     first = next(module for module in net.modules() if isinstance(module, torch.nn.Conv2d))
     return GoalSampler(net, cfg, first.in_channels)

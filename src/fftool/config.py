@@ -317,6 +317,16 @@ class ReportConfig(_Section):
     # Percentile intervals from a bootstrap over test windows (science/bootstrap.py), paired across predictors.
     bootstrap_resamples: int = Field(2000, ge=100)
     bootstrap_seed: int = 0
+    # Windows per block of the moving-block bootstrap: "auto" = windows as far apart as one window is long
+    # share no step ((obs_len + pred_len) / window_stride, 20 for ETH/UCY); 1 = each window on its own.
+    bootstrap_block: Annotated[int, Field(ge=1)] | Literal["auto"] = "auto"
+
+    def block_length(self, windows: WindowsConfig) -> int:
+        """The bootstrap's block length in windows (docs/metrics.md, "Intervals")."""
+        if self.bootstrap_block != "auto":
+            return self.bootstrap_block
+        return -(-(windows.obs_len + windows.pred_len) // windows.window_stride)
+
     confidence: float = Field(0.95, gt=0, lt=1)
 
 

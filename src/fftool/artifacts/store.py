@@ -449,6 +449,35 @@ class ArtifactStore:
             _remove_empty(tmp.parent)
         ctx.artifact = Artifact(self.path_for(kind, fp), manifest)
 
+    def adopt(self, artifact: Artifact, manifest: Manifest | None = None) -> Artifact:
+        """Copy an artifact of another store into this one (under `manifest`, default its own), atomically and
+        under its fingerprint's lock; the copy's files are checked against the manifest before it lands."""
+        manifest = manifest or artifact.manifest
+        final = self.path_for(manifest.kind, manifest.fingerprint)
+        with self.lock(manifest.kind, manifest.fingerprint):
+            self.clean_incomplete()
+            tmp = self.root / _INCOMPLETE / f"{manifest.kind}-{manifest.fingerprint[:_FP_DIR_LEN]}-{os.getpid()}"
+            shutil.rmtree(tmp, ignore_errors=True)
+            try:
+                shutil.copytree(artifact.path, tmp)
+                (tmp / MANIFEST).write_text(manifest.to_json())
+                problems = self.verify(Artifact(tmp, manifest))
+                if problems:
+                    raise IntegrityError(f"{artifact.path}: {problems[0]}; nothing was copied")
+                self._install(tmp, final)
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+                _remove_empty(tmp.parent)
+        return Artifact(final, manifest)
+
+    def remove(self, artifact: Artifact) -> None:
+        """Delete one of this store's own artifacts (a readable one: anything else is left where it is)."""
+        self._read(artifact.path)
+        if artifact.path.resolve().parent.parent != self.root.resolve():
+            raise IntegrityError(f"{artifact.path} is not an artifact of the store under {self.root}")
+        shutil.rmtree(artifact.path)
+        _remove_empty(artifact.path.parent)
+
     def _keep_damaged(self, scratch: Path) -> None:
         """Move checkpoints a training set aside as damaged (`*.damaged-*`) out of the scratch folder."""
         for damaged in sorted(scratch.glob("*.damaged-*")):

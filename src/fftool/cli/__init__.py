@@ -2,14 +2,16 @@
 
 `fftool.cli.app` holds the Typer app, the one error boundary and the shared options; each module adds
 its commands: `data` (fetch-data), `stages` (one per pipeline stage), `predict` (your own tracks), `reports`
-(reproduce/ablate, plot, rescore) and `artifacts` (list, show, verify). The science lives in the packages below.
+(reproduce/ablate, plot, rescore), `artifacts` (list, show, verify) and `models` (the shipped models).
+The science lives in the packages below.
 """
 
 from importlib import import_module
 
 from fftool.cli.app import app
 
-for _module in ("data", "stages", "predict", "reports", "artifacts"):  # importing registers the commands, in this order
+# Importing registers the commands, in this order.
+for _module in ("data", "stages", "predict", "reports", "artifacts", "models"):
     import_module(f"fftool.cli.{_module}")
 
 __all__ = ["app"]

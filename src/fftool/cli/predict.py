@@ -21,6 +21,7 @@ def _times(value: str) -> str | list[float]:
 
 @app.command(
     epilog="Examples:\n\n"
+    "  fftool predict tracks.csv --model cpu/zara1/dr --out futures.parquet   # shipped: fftool models list\n\n"
     "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --out futures.parquet --plot futures.png\n\n"
     "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --at all --out all.parquet"
     "   # every time with 8 observed steps"
@@ -28,7 +29,14 @@ def _times(value: str) -> str | list[float]:
 @boundary
 def predict(
     tracks: Annotated[Path, typer.Argument(help="CSV or Parquet: a time (s) or frame column, agent id, x, y.")],
-    model: Annotated[str, typer.Option("--model", help="Trained CVAE: artifact id (cvae/3f9c2a) or its folder.")],
+    model: Annotated[
+        str,
+        typer.Option(
+            "--model",
+            help="Trained CVAE: artifact id (cvae/3f9c2a), its folder, or a shipped model's name (cpu/zara1/dr: "
+            "with its DLow sampler and, for goal variants, its goal U-Net, as its profile evaluates it).",
+        ),
+    ],
     dlow: Annotated[
         str | None,
         typer.Option(
@@ -86,8 +94,10 @@ def predict(
     from fftool.api import load, load_goal_sampler, predict_tracks
     from fftool.dataset.trackfiles import Columns, read_goals, read_tracks
     from fftool.errors import UsageError
+    from fftool.paper import reads_goal
     from fftool.reporting.predictions import check_out, prediction_figure, write_predictions
     from fftool.ui import log, warn
+    from fftool.zoo import is_name
 
     when = _times(at)
     if time_step is not None and not time_step > 0:
@@ -102,6 +112,8 @@ def predict(
     if goals is not None:
         goal_rows = read_goals(goals, columns, units)
         per_agent = dict(zip(goal_rows["agent"], zip(goal_rows["x"], goal_rows["y"])))
+    if goal_model is None and goals is None and is_name(model) and reads_goal(chosen.variant):
+        goal_model = model  # a shipped goal variant brings its benchmark's goal U-Net
     sampler = load_goal_sampler(goal_model, root=root, device=chosen.device) if goal_model else None
     table, warnings = predict_tracks(
         chosen, observed, source=tracks, at=when, k=k, seed=seed, goals=per_agent, goal_sampler=sampler,

@@ -27,7 +27,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
 from fftool.errors import UsageError
 from fftool.paper import PREDICTORS
-from fftool.reporting import scores, tables
+from fftool.reporting import claims, scores, tables
 from fftool.stages.evaluate import METRIC_DEFINITIONS
 
 
@@ -154,8 +154,9 @@ def caption(cfg: PipelineConfig, profile: str) -> str:
         f"{_samplers(cfg)}; "
         f"K = {ev.k} samples; test part of each leave-one-out benchmark; NC at gamma = {ev.collision_threshold_m} m "
         f"over {report.collision_pairs} pairs of {report.collision_sample.replace('_', '-')} samples; {_seeds(cfg)}; "
-        f"[low, high]: {report.confidence:.0%} percentile interval of a bootstrap over test windows "
-        f"({report.bootstrap_resamples} resamples, seed {report.bootstrap_seed}). "
+        f"[low, high]: {report.confidence:.0%} percentile interval of a moving-block bootstrap over test windows "
+        f"(blocks of {report.block_length(cfg.windows)} consecutive windows, {report.bootstrap_resamples} resamples, "
+        f"seed {report.bootstrap_seed}). "
         "Paper: ForceFormer Tables II-IV (its goal protocol = ours 'paper')."
     )
 
@@ -223,7 +224,8 @@ def write_report(
 
     `out_dir` must have passed `check_report_folder`; it is checked again here, just before the swap.
     """
-    scored, rows = scores.score(store, results, cfg.report, cfg.evaluate.collision_threshold_m)
+    block = cfg.report.block_length(cfg.windows)
+    scored, rows = scores.score(store, results, cfg.report, cfg.evaluate.collision_threshold_m, block)
     grid, text = tables.Grid(scored, cfg.report.confidence, frozenset(cfg.dlow.variants)), caption(cfg, profile)
     counts = 1 if len(grid_seeds(cfg)) > 1 else 0  # a mean over seeds of counts has a decimal
     built = [
@@ -233,6 +235,8 @@ def write_report(
         tables.table5(grid, text, counts),
         tables.table6(grid, text),
     ]
+    claimed = claims.claims_table(grid, cfg.evaluate.protocol)  # all five benchmarks only
+    built += [claimed] if claimed is not None else []
     partial = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
     shutil.rmtree(partial, ignore_errors=True)
     try:

@@ -19,14 +19,17 @@ from fftool.stages.evaluate import METRIC_COLUMNS, summary
 
 # Windows × K × agents² per rescoring pass: bounds the memory of COL's (B, K, 14, A, A) distances.
 _RESCORE_PAIRS: Final = 200_000
+# What rescoring gives: the predictions file's metric columns, and the joint metrics (JADE, JFDE) beside them.
+SCORED_COLUMNS: Final = (*METRIC_COLUMNS, "joint_ade", "joint_fde")
 
 
 def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: float) -> dict[str, np.ndarray]:
     """Per-agent metrics recomputed from saved predictions (e.g. at another γ) without sampling again.
 
     predictions: an evaluation's predictions.parquet; data: the agent-windows of the same part (for
-    the ground truth). Returns the predictions file's metric columns and COL and Col-II (METRIC_COLUMNS),
-    in its row order. Windows are scored in passes of at most _RESCORE_PAIRS windows × K × agents².
+    the ground truth). Returns the predictions file's metric columns with COL and Col-II (METRIC_COLUMNS) and
+    the joint ADE/FDE (SCORED_COLUMNS), in its row order. Windows are scored in passes of at most
+    _RESCORE_PAIRS windows × K × agents².
     """
     position = np.searchsorted(data.row, predictions["agent_row"].to_numpy())
     pred = np.stack(predictions["pred"].to_numpy()).reshape(len(predictions), k, -1, 2)
@@ -48,7 +51,7 @@ def rescore(predictions: pd.DataFrame, data: AgentWindows, k: int, threshold_m: 
                       threshold_m)
         for lo in range(0, B, step)
     ]  # fmt: skip
-    return {name: torch.cat([getattr(m, name) for m in passes])[which, slot].numpy() for name in METRIC_COLUMNS}
+    return {name: torch.cat([getattr(m, name) for m in passes])[which, slot].numpy() for name in SCORED_COLUMNS}
 
 
 def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, Any]:
@@ -62,7 +65,7 @@ def rescore_artifact(store: ArtifactStore, evaluation: Artifact, threshold_m: fl
 
 
 def rescored_columns(store: ArtifactStore, evaluation: Artifact, threshold_m: float) -> dict[str, np.ndarray]:
-    """An evaluation's per-agent metric columns (METRIC_COLUMNS) recomputed from its saved predictions, NC at
+    """An evaluation's per-agent metric columns (SCORED_COLUMNS) recomputed from its saved predictions, NC at
     `threshold_m`, with each row's window_id: what `rescore` prints and what the report's intervals resample."""
     check_schema(evaluation, "evaluate")
     windows = store.lookup("windows", evaluation.manifest.built_from()["windows"])

@@ -23,8 +23,8 @@ from fftool.dataset.scenes import BENCHMARKS
 from fftool.errors import FftoolError
 from fftool.science.bootstrap import percentile_interval, replicate_means, replicate_sums, window_draws, windows_of
 
-METRICS: Final = ("min_ade", "min_fde", "nc", "col", "col_gt")
-MEANS: Final = frozenset({"min_ade", "min_fde", "col"})  # means over agent-windows; nc and col_gt are counts
+METRICS: Final = ("min_ade", "min_fde", "nc", "col", "col_gt", "jade", "jfde")
+MEANS: Final = frozenset({"min_ade", "min_fde", "col", "jade", "jfde"})  # means over agent-windows; the rest count
 
 
 @dataclass(frozen=True)
@@ -67,15 +67,18 @@ def _metric_values(columns: Mapping[str, np.ndarray], pairs: str, sample: str) -
         "nc": contacts if pairs == "ordered" else contacts / 2,  # every contact is counted at both agents
         "col": columns["col"],
         "col_gt": columns["col_gt"],
+        "jade": columns["joint_ade"],
+        "jfde": columns["joint_fde"],
     }
 
 
 def score(
-    store: ArtifactStore, results: list[dict[str, Any]], report: ReportConfig, threshold_m: float
+    store: ArtifactStore, results: list[dict[str, Any]], report: ReportConfig, threshold_m: float, block: int = 1
 ) -> tuple[dict[tuple[str, str, str], Score], list[dict[str, Any]]]:
     """Scores per (benchmark, predictor, metric), and one row per evaluation (seed) with its own intervals.
 
-    results: the ablation's cells, each an evaluate manifest's stats with `artifact` and `grid_seed`.
+    results: the ablation's cells, each an evaluate manifest's stats with `artifact` and `grid_seed`; block: the
+    moving-block bootstrap's windows per block (1: windows resampled one by one).
     """
     from fftool.reporting.rescoring import rescored_columns  # torch: only when scores are computed
 
@@ -88,7 +91,7 @@ def score(
         benchmark = r["benchmark"]
         if benchmark not in draws:
             seed = [report.bootstrap_seed, _benchmark_index(benchmark)]
-            draws[benchmark] = ids, window_draws(len(ids), report.bootstrap_resamples, seed)
+            draws[benchmark] = ids, window_draws(len(ids), report.bootstrap_resamples, seed, block)
         known, drawn = draws[benchmark]
         if not np.array_equal(known, ids):
             raise FftoolError(f"{r['artifact']}: its test windows differ from the other {benchmark} evaluations")

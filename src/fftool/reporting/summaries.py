@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from rich import box
 from rich.table import Table
@@ -255,4 +256,41 @@ def run_summary(results: list[dict]) -> Table:
         built = ", ".join(r["built_now"]) or "[dim]nothing (all reused)[/]"
         minutes = f"{r['cell_seconds'] / 60:.1f}"
         table.add_row(r["benchmark"], r["variant"], r["protocol"], built, minutes, r["artifact"])
+    return table
+
+
+def _best_row(manifest: Any) -> dict[str, Any]:
+    """The log row of a trained model's best epoch (its validation numbers)."""
+    stats = manifest.stats
+    rows = [row for row in stats.get("log", []) if row.get("epoch") == stats.get("best_epoch")]
+    return rows[0] if rows else {}
+
+
+def zoo_table(models: list[Any], orphaned: set[str]) -> Table:
+    """The shipped models: name, kind, validation numbers of the best epoch, size, current or orphaned."""
+    table = Table(title="shipped models (models/<profile>/)", title_justify="left")
+    for name in ("name", "kind", "id", "validation (best epoch)", "epochs", "size", "status"):
+        table.add_column(name, justify="right" if name in ("epochs", "size") else "left")
+    for model in models:
+        manifest = model.artifact.manifest
+        row = _best_row(manifest)
+        ade = next((v for k, v in row.items() if k.startswith("val_min_ade")), None)
+        fde = next((v for k, v in row.items() if k.startswith("val_min_fde")), None)
+        if ade is not None and fde is not None:
+            shown = f"minADE/minFDE {ade:.3f} / {fde:.3f}"
+        else:
+            best = next(
+                ((k, v) for k, v in manifest.stats.items() if k.startswith("best_") and k != "best_epoch"), None
+            )
+            shown = f"{best[0].removeprefix('best_')} {best[1]:.3f}" if best and best[1] is not None else ""
+        size = sum(f["bytes"] for f in manifest.files.values())
+        status = "[red]orphaned[/]" if model.name in orphaned else "[green]current[/]"
+        epochs = f"{manifest.stats.get('best_epoch', '')}/{len(manifest.stats.get('log', []))}"
+        table.add_row(model.name, model.kind, model.artifact.id, shown, epochs, f"{size / 1e6:.2f} MB", status)
+    total = sum(sum(f["bytes"] for f in m.artifact.manifest.files.values()) for m in models)
+    table.caption = (
+        f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint"
+        if models
+        else "no shipped models"
+    )
     return table

@@ -160,20 +160,27 @@ def table4(grid: Grid, caption: str, count_digits: int) -> Table:
 
 
 def table5(grid: Grid, caption: str, count_digits: int) -> Table:
-    """The field's other collision metrics beside NC: COL (% of samples) and Col-II (agent-windows); no
-    published ForceFormer numbers exist for them. COL averages over scenes, Col-II sums like NC."""
-    metrics = {"col": ("COL", 2), "col_gt": ("Col-II", count_digits)}
+    """The field's other collision metrics beside NC, COL (% of samples) and Col-II (agent-windows), and the
+    joint metrics JADE / JFDE (one sample index for a whole window; docs/metrics.md); no published ForceFormer
+    numbers exist for them. COL, JADE and JFDE average over scenes, Col-II sums like NC."""
+    metrics = {"col": ("COL", 2), "col_gt": ("Col-II", count_digits), "jade": ("JADE", 3), "jfde": ("JFDE", 3)}
     shown, data = [], []
-    for metric, total in (("col", "average"), ("col_gt", "sum")):
+    for metric, total in (("col", "average"), ("col_gt", "sum"), ("jade", "average"), ("jfde", "average")):
         frames = _scalar_table(grid, {metric: metrics[metric]}, total, {})
         shown.append(frames[0].set_index("method"))
         data.append(frames[1].set_index("method"))
     frame, numbers_ = (pd.concat(parts, axis=1).reset_index() for parts in (shown, data))
-    title = "Table V: COL (% of the K samples, EigenTrajectory) and Col-II (agent-windows, Trajnet++)"
+    title = (
+        "Table V: COL (% of the K samples, EigenTrajectory), Col-II (agent-windows, Trajnet++) and the joint "
+        "JADE / JFDE (m, Weng et al. 2023)"
+    )
     return Table("table5_collision_metrics", title, frame, caption, numbers_)
 
 
-PAIRED_METRICS: Final = {"min_ade": "minADE", "min_fde": "minFDE", "nc": "NC", "col": "COL", "col_gt": "Col-II"}
+PAIRED_METRICS: Final = {
+    "min_ade": "minADE", "min_fde": "minFDE", "nc": "NC", "col": "COL", "col_gt": "Col-II", "jade": "JADE",
+    "jfde": "JFDE",
+}  # fmt: skip
 
 
 def table6(grid: Grid, caption: str, reference: str = "baseline") -> Table:
@@ -183,13 +190,13 @@ def table6(grid: Grid, caption: str, reference: str = "baseline") -> Table:
     variants = [p for p in grid.predictors if p not in (reference, "cv")]
     rows_shown, rows_data = [], []
     for metric, label in PAIRED_METRICS.items():
-        total = "average" if metric in ("min_ade", "min_fde", "col") else "sum"
+        total = "average" if metric in MEANS else "sum"
 
         def difference(scene: str, predictor: str, _metric: str, _total: str = total) -> Score | None:
             ours, theirs = grid.get(scene, predictor, _metric, _total), grid.get(scene, reference, _metric, _total)
             return None if ours is None or theirs is None else ours - theirs
 
-        digits = 3 if metric in ("min_ade", "min_fde") else 2 if metric == "col" else 1
+        digits = 2 if metric == "col" else 3 if metric in MEANS else 1
         shown, data = _scalar_table(grid, {metric: ("", digits)}, total, {}, variants, difference)
         for frame, into in ((shown, rows_shown), (data, rows_data)):
             frame.insert(1, "metric", f"Δ{label}")

@@ -1,11 +1,13 @@
 """Bootstrap confidence intervals over test windows, and paired differences between predictors.
 
-The unit resampled is the window, not the agent: the agents of one window share their neighbours (and
-each other's collisions), so they are not independent draws. A resample draws W windows with replacement
-from the W windows of a test part; a metric of that resample is a sum over its windows (NC, Col-II) or a
-ratio of sums (minADE, minFDE, COL: the mean over the agent-windows it holds). One (R, W) matrix of draw
-counts serves every metric and every predictor of a benchmark, so the difference of two predictors'
-replicates is a paired bootstrap: the same windows, resampled together.
+The unit resampled is the window, not the agent: the agents of one window share their neighbours (and each
+other's collisions), so they are not independent draws. Nor are neighbouring windows: a stride-1 window
+shares 19 of its 20 steps with the next, so windows are resampled in blocks of consecutive windows in time
+(the moving-block bootstrap, `window_draws`; docs/metrics.md gives the block-length rule). A resample holds
+W of the W windows of a test part, drawn with replacement; a metric of that resample is a sum over its
+windows (NC, Col-II) or a ratio of sums (minADE, minFDE, COL: the mean over the agent-windows it holds). One
+(R, W) matrix of draw counts serves every metric and every predictor of a benchmark, so the difference of
+two predictors' replicates is a paired bootstrap: the same windows, resampled together.
 
 Why not scipy.stats.bootstrap: it redraws per call, so pairing across predictors and metrics would rest on
 equal seeds and equal sample sizes, and its ratio statistic over paired (sum, count) arrays is no shorter.
@@ -21,10 +23,23 @@ from collections.abc import Sequence
 import numpy as np
 
 
-def window_draws(n_windows: int, resamples: int, seed: int | Sequence[int]) -> np.ndarray:
-    """(R, W) int: how often each of W windows is drawn in each of R resamples of W draws with replacement."""
+def window_draws(n_windows: int, resamples: int, seed: int | Sequence[int], block: int = 1) -> np.ndarray:
+    """(R, W) int: how often each of W windows is drawn in each of R resamples of W windows.
+
+    block = 1: W windows drawn with replacement. block = L > 1: the moving-block bootstrap (Künsch 1989) over
+    the windows in time order: ceil(W / L) runs of L consecutive windows, each starting anywhere in
+    [0, W − L], the last run cut so that a resample holds W windows. Overlapping windows are dependent (stride-1
+    windows share 19 of their 20 steps), so resampling them one by one understates the spread; a block as long
+    as the dependence keeps it.
+    """
     rng = np.random.default_rng(seed)
-    draws = rng.integers(0, n_windows, size=(resamples, n_windows))  # (R, W) window indices
+    block = max(1, min(block, n_windows))
+    if block == 1:
+        draws = rng.integers(0, n_windows, size=(resamples, n_windows))  # (R, W) window indices
+    else:
+        runs = -(-n_windows // block)
+        starts = rng.integers(0, n_windows - block + 1, size=(resamples, runs))  # (R, runs)
+        draws = (starts[:, :, None] + np.arange(block)).reshape(resamples, -1)[:, :n_windows]
     flat = draws + np.arange(resamples)[:, None] * n_windows  # one bincount slot per (resample, window)
     return np.bincount(flat.ravel(), minlength=resamples * n_windows).reshape(resamples, n_windows)
 

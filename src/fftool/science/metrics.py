@@ -5,10 +5,12 @@ Every function works on padded windows: predictions (B, K, A, T, 2), ground trut
 agent mask (B, A), all in metres. Distances are unsquared Euclidean (the paper prints ‖·‖², a typo
 relative to every implementation). Definitions and pitfalls: docs/metrics.md.
 
-Worked example: one agent, K = 2 samples that miss the truth by 1 m and 3 m at every step gives
-minADE = minFDE = 1 m; two agents whose best-ADE samples are 0.05 m apart at 3 steps give NC = 6
-ordered pairs-steps (3 unordered), since the paper's sum runs over m ≠ n. COL and Col-II use their
-sources' own thresholds and interpolation, not γ, so that the numbers compare with published ones.
+Worked example: one agent, K = 2 samples that miss the truth by 1 m and 3 m at every step gives minADE =
+minFDE = 1 m; two agents whose samples miss by (1 m, 3 m) and (3 m, 1 m) have minADE 1 m each but JADE 2 m
+(one sample index for the whole window: the joint metrics of Weng et al. 2023); two agents whose best-ADE
+samples are 0.05 m apart at 3 steps give NC = 6 ordered pairs-steps (3 unordered), since the paper's sum
+runs over m ≠ n. COL and Col-II use their sources' own thresholds and interpolation, not γ, so that the
+numbers compare with published ones.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ class AgentMetrics:
     best_k: Tensor  # the sample with the smallest ADE (long)
     collisions: Tensor  # (other agent, step) pairs closer than γ, best-ADE samples of both (paper)
     joint_collisions: Tensor  # the same with one sample per window: the one with the smallest summed ADE
+    joint_ade: Tensor  # ADE of that sample, the window's joint best: their mean over agent-windows is JADE
+    joint_fde: Tensor  # FDE of the window's sample with the smallest summed FDE: their mean is JFDE
     col: Tensor  # COL: % of the K samples within COL_THRESHOLD_M of another agent's same-index sample
     col_gt: Tensor  # Col-II: 1 if the best-ADE sample comes within COL_GT_THRESHOLD_M of a neighbour's truth
 
@@ -125,8 +129,10 @@ def agent_metrics(pred: Tensor, truth: Tensor, agent_mask: Tensor, threshold_m: 
     B, K, A, T, _ = pred.shape
     index = best_k[:, None, :, None, None].expand(B, 1, A, T, 2)
     best = pred.gather(1, index)[:, 0]  # (B, A, T, 2) each agent's best-ADE sample
+    windows = torch.arange(B, device=pred.device)
     joint_k = (ade * agent_mask[:, None]).sum(-1).argmin(1)  # (B,) the window's best joint sample
-    joint = pred[torch.arange(B, device=pred.device), joint_k]
+    joint_final_k = (fde * agent_mask[:, None]).sum(-1).argmin(1)  # (B,) the same by FDE
+    joint = pred[windows, joint_k]
     mask = agent_mask.to(pred.dtype)
     return AgentMetrics(
         min_ade=min_ade * mask,
@@ -134,6 +140,8 @@ def agent_metrics(pred: Tensor, truth: Tensor, agent_mask: Tensor, threshold_m: 
         best_k=best_k * agent_mask,
         collisions=pair_contacts(best, agent_mask, threshold_m),
         joint_collisions=pair_contacts(joint, agent_mask, threshold_m),
+        joint_ade=ade[windows, joint_k] * mask,
+        joint_fde=fde[windows, joint_final_k] * mask,
         col=col_rate(pred, agent_mask),
         col_gt=gt_collisions(best, truth, agent_mask),
     )

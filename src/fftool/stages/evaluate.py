@@ -162,8 +162,7 @@ def sample_and_score(
     def scored(batch: SceneBatch, goals_k: torch.Tensor, futures: torch.Tensor) -> dict[str, Any]:
         metrics = agent_metrics(futures, batch.xy[:, :, obs_len:], batch.agent_mask, cfg.collision_threshold_m)
         n_agents = batch.agent_mask.sum(1, keepdim=True).expand_as(batch.agent_mask)
-        names = ("min_ade", "min_fde", "best_k", "collisions", "joint_collisions", "col", "col_gt")
-        return {"n_agents": n_agents, **{name: getattr(metrics, name) for name in names}} | {
+        return {"n_agents": n_agents, **{name: getattr(metrics, name) for name in METRIC_COLUMNS}} | {
             "goal": goals_k.transpose(1, 2),
             "pred": futures.transpose(1, 2),
         }

@@ -1,0 +1,273 @@
+"""The model zoo: trained models shipped in the repository, keyed by the fingerprints the code computes.
+
+`models/<profile>/` is an artifact store of its own (the same layout, manifests and hashes as any store)
+holding, per benchmark, what `pipelines/<profile>.toml` trains: the goal U-Net, the four CVAEs and the DLow
+samplers the profile keeps. A shipped model is current when the fingerprint the code computes today for its
+stage, benchmark and variant under that profile equals the one it was trained under; `install` copies
+current models into a user's store (every file checked against its manifest first), so `reproduce` finds
+them built and trains nothing. Names read `<profile>/<benchmark>/<variant>` (e.g. `cpu/zara1/dr`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
+from fftool.config import PipelineConfig, load_config, predictor_config
+from fftool.errors import FftoolError, IntegrityError, UsageError
+from fftool.paper import VARIANTS, reads_goal
+
+ENV_MODELS = "FFTOOL_MODELS"
+KINDS = ("goal", "cvae", "dlow")  # what a profile's run trains, upstream first
+NAME = re.compile(r"(?P<profile>[a-z0-9_]+)/(?P<benchmark>[A-Za-z0-9_.-]+)/(?P<variant>[a-z]+)")
+
+
+def models_root() -> Path:
+    """`$FFTOOL_MODELS`, or the `models/` folder of this source checkout."""
+    return Path(os.environ.get(ENV_MODELS, Path(__file__).resolve().parents[2] / "models"))
+
+
+def pipelines_root() -> Path:
+    return Path(__file__).resolve().parents[2] / "pipelines"
+
+
+def is_name(ref: str | Path) -> bool:
+    """Whether `ref` reads as a shipped model's name (`cpu/zara1/dr`) rather than an artifact id or folder."""
+    return isinstance(ref, str) and NAME.fullmatch(ref) is not None and not Path(ref).exists()
+
+
+@dataclass(frozen=True)
+class Shipped:
+    """One shipped artifact and what it is: its profile, benchmark, stage and (for cvae and dlow) variant."""
+
+    profile: str
+    artifact: Artifact
+
+    @property
+    def kind(self) -> str:
+        return self.artifact.kind
+
+    @property
+    def benchmark(self) -> str:
+        return str(self.artifact.manifest.params["benchmark"])
+
+    @property
+    def variant(self) -> str | None:
+        manifest = self.artifact.manifest
+        return manifest.params.get("variant") or manifest.stats.get("variant")
+
+    @property
+    def name(self) -> str:
+        """`cpu/zara1/dr` for a CVAE, `cpu/zara1/dr/dlow` for its DLow sampler, `cpu/zara1/goal-unet`."""
+        base = f"{self.profile}/{self.benchmark}"
+        return {"goal": f"{base}/goal-unet", "cvae": f"{base}/{self.variant}", "dlow": f"{base}/{self.variant}/dlow"}[
+            self.kind
+        ]
+
+    def profile_config(self) -> PipelineConfig:
+        return profile_config(self.profile)
+
+    def expected_fingerprint(self, cfg: PipelineConfig | None = None) -> str:
+        """The fingerprint today's code computes for this stage, benchmark and variant under the profile."""
+        from fftool import pipeline
+
+        cfg = cfg or self.profile_config()
+        if self.variant is not None:
+            cfg = predictor_config(cfg, self.variant)
+        resolved = pipeline.resolve(cfg, [self.kind], self.benchmark)
+        return next(item.fingerprint for item in resolved if item.stage.name == self.kind)
+
+
+def profile_config(profile: str) -> PipelineConfig:
+    path = pipelines_root() / f"{profile}.toml"
+    if not path.is_file():
+        raise UsageError(f"models/{profile}: no profile {path} to check its models against")
+    return load_config(path)
+
+
+def store(profile: str, root: Path | None = None) -> ArtifactStore:
+    folder = (root or models_root()) / profile
+    if not folder.is_dir():
+        raise UsageError(f"no shipped models for profile {profile!r} (looked in {folder})")
+    return ArtifactStore(folder)
+
+
+def profiles(root: Path | None = None) -> list[str]:
+    folder = root or models_root()
+    return sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+
+
+def shipped(profile: str, benchmarks: Iterable[str] | None = None, root: Path | None = None) -> list[Shipped]:
+    """The profile's shipped artifacts (of the benchmarks given), in KINDS order, then by benchmark and variant."""
+    chosen = None if benchmarks is None else set(benchmarks)
+    found = [Shipped(profile, a) for kind in KINDS for a in store(profile, root).list(kind)]
+    found = [m for m in found if chosen is None or m.benchmark in chosen]
+    return sorted(found, key=lambda m: (KINDS.index(m.kind), m.benchmark, m.variant or ""))
+
+
+def orphans(models: Iterable[Shipped]) -> dict[str, str]:
+    """Shipped models whose fingerprint the code no longer computes: name -> one line saying what to do."""
+    configs: dict[str, PipelineConfig] = {}
+    lines = {}
+    for model in models:
+        cfg = configs.setdefault(model.profile, model.profile_config())
+        expected, profile_file = model.expected_fingerprint(cfg), f"pipelines/{model.profile}.toml"
+        if expected != model.artifact.fingerprint:
+            lines[model.name] = (
+                f"{model.name} ({model.artifact.id}) was trained under a fingerprint the code no longer computes "
+                f"({model.kind}/{expected[:16]} now): a change to {profile_file} or to the {model.kind} stage (or "
+                f"upstream) alters what it is. Retrain it (`fftool reproduce {profile_file} --benchmarks "
+                f"{model.benchmark}`, then `fftool models pack`), or, if the change leaves the model as it was, "
+                "re-key it (`fftool models rekey`)"
+            )
+    return lines
+
+
+def check(model: Shipped, zoo: ArtifactStore) -> None:
+    """Refuse a shipped model whose files changed since it was trained or whose schema this code cannot read."""
+    check_schema(model.artifact, model.kind)
+    problems = zoo.verify(model.artifact)
+    if problems:
+        raise IntegrityError(f"{model.artifact.path}: {problems[0]}; the shipped model is damaged (git checkout it)")
+
+
+@dataclass(frozen=True)
+class Bundle:
+    """What a shipped name loads: the CVAE, the DLow sampler the profile evaluates it with, the goal U-Net."""
+
+    cvae: Artifact
+    dlow: Artifact | None
+    goal: Artifact | None
+
+
+def find(name: str, root: Path | None = None) -> Bundle:
+    """The CVAE named `<profile>/<benchmark>/<variant>`, its DLow sampler (when the profile keeps one) and, for
+    variants that read a goal, its benchmark's goal U-Net; every file checked against its manifest."""
+    match = NAME.fullmatch(name)
+    if match is None:
+        raise UsageError(f"{name!r}: expected a shipped model's name, <profile>/<benchmark>/<variant> (cpu/zara1/dr)")
+    profile, benchmark, variant = match["profile"], match["benchmark"], match["variant"]
+    if variant not in VARIANTS:
+        raise UsageError(f"{name}: unknown variant {variant!r}; one of {', '.join(VARIANTS)}")
+    zoo = store(profile, root)
+    models = shipped(profile, [benchmark], root)
+    by_kind = {m.kind: m for m in models if m.variant in (variant, None)}
+    if "cvae" not in by_kind:
+        names = ", ".join(m.name for m in models if m.kind == "cvae") or "none"
+        raise FftoolError(f"no shipped model {name} (shipped for {benchmark}: {names}; see `fftool models list`)")
+    for model in by_kind.values():
+        check(model, zoo)
+    cvae = by_kind["cvae"].artifact
+    dlow = by_kind.get("dlow")
+    goal = by_kind.get("goal") if reads_goal(variant) else None
+    return Bundle(
+        cvae,
+        dlow.artifact if dlow and dlow.artifact.manifest.sources.get("cvae") == cvae.fingerprint else None,
+        goal.artifact if goal else None,
+    )
+
+
+def install(target: ArtifactStore, models: Iterable[Shipped], root: Path | None = None) -> list[tuple[Shipped, str]]:
+    """Copy current shipped models into `target` (each file checked, the copy checked again, atomically); the
+    status of each: installed, or present (the store had it). An orphaned or damaged model stops the install
+    before anything is copied."""
+    models = list(models)
+    stale = list(orphans(models).values())
+    if stale:
+        more = f" (and {len(stale) - 1} more)" if len(stale) > 1 else ""
+        raise FftoolError(stale[0] + more)
+    zoos = {profile: store(profile, root) for profile in {m.profile for m in models}}
+    for model in models:
+        check(model, zoos[model.profile])
+    done = []
+    for model in models:
+        existing = target.lookup(model.kind, model.artifact.fingerprint)
+        if existing is not None:
+            target.check_inputs({model.kind: existing})
+            done.append((model, "present"))
+        else:
+            target.adopt(model.artifact)
+            done.append((model, "installed"))
+    return done
+
+
+def trained_by(cfg: PipelineConfig, benchmark: str) -> list[tuple[str, str | None, str]]:
+    """(kind, variant, fingerprint) of every model the profile trains for a benchmark: the goal U-Net, the
+    CVAEs of the baseline and report.variants, the DLow samplers of dlow.variants."""
+    from fftool import pipeline
+
+    variants = ["baseline", *(v for v in cfg.report.variants if v != "baseline")]
+    wanted: list[tuple[str, str | None]] = [("goal", None), *(("cvae", v) for v in variants)]
+    wanted += [("dlow", v) for v in variants if v in cfg.dlow.variants]
+    found = []
+    for kind, variant in wanted:
+        chosen = cfg if variant is None else predictor_config(cfg, variant)
+        resolved = pipeline.resolve(chosen, [kind], benchmark)
+        found.append((kind, variant, next(item.fingerprint for item in resolved if item.stage.name == kind)))
+    return found
+
+
+def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
+    """Copy a benchmark's trained models from `source` into `models/<profile>/` (all of them or nothing), and
+    remove the shipped models they replace (the same name, another fingerprint); the names packed."""
+    cfg = profile_config(profile)
+    folder = (root or models_root()) / profile
+    folder.mkdir(parents=True, exist_ok=True)
+    zoo = ArtifactStore(folder)
+    chosen = list(benchmarks)
+    plan = []
+    for benchmark in chosen:
+        for kind, variant, fp in trained_by(cfg, benchmark):
+            artifact = source.lookup(kind, fp)
+            if artifact is None:
+                what = f"{kind} {variant or ''}".strip()
+                raise FftoolError(
+                    f"{source.root} has no {what} model of {benchmark} for pipelines/{profile}.toml; train it first "
+                    f"(`fftool reproduce pipelines/{profile}.toml --benchmarks {benchmark}`)"
+                )
+            source.check_inputs({kind: artifact})
+            plan.append(artifact)
+    old = {m.name: m for m in shipped(profile, chosen, root)}
+    packed = []
+    for artifact in plan:
+        model = Shipped(profile, zoo.adopt(artifact))
+        replaced = old.get(model.name)
+        if replaced is not None and replaced.artifact.fingerprint != model.artifact.fingerprint:
+            zoo.remove(replaced.artifact)
+        packed.append(model.name)
+    return packed
+
+
+def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | None = None) -> list[str]:
+    """Move orphaned shipped models to the fingerprints the code computes now, when only code versions or
+    upstream fingerprints changed: a model whose recorded parameters differ from today's is refused (it was
+    trained on something else: retrain it). The manifest's fingerprint, inputs and sources are rewritten and
+    `rekeyed_from` is added to its stats; the names re-keyed."""
+    from dataclasses import replace
+
+    from fftool import pipeline
+
+    cfg = profile_config(profile)
+    zoo = store(profile, root)
+    moved = []
+    for model in shipped(profile, benchmarks, root):
+        chosen = cfg if model.variant is None else predictor_config(cfg, model.variant)
+        item = next(r for r in pipeline.resolve(chosen, [model.kind], model.benchmark) if r.stage.name == model.kind)
+        manifest = model.artifact.manifest
+        if item.fingerprint == manifest.fingerprint:
+            continue
+        if item.params != manifest.params:
+            keys = {*item.params, *manifest.params}
+            changed = sorted(k for k in keys if item.params.get(k) != manifest.params.get(k))
+            raise FftoolError(f"{model.name}: trained with other parameters ({', '.join(changed)}); retrain it")
+        check(model, zoo)
+        stats = manifest.stats | {"rekeyed_from": manifest.fingerprint}
+        new = replace(manifest, fingerprint=item.fingerprint, inputs=item.inputs, sources=item.sources, stats=stats)
+        zoo.adopt(model.artifact, new)
+        zoo.remove(model.artifact)
+        moved.append(model.name)
+    return moved

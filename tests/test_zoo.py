@@ -1,0 +1,153 @@
+"""The model zoo: shipped models stay current with the code, install only intact files under the fingerprints the
+code computes, load by name, and `reproduce` then trains nothing."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from fftool import api, pipeline, zoo
+from fftool.artifacts.store import ArtifactStore
+from fftool.cli import app
+from fftool.config import load_config, predictor_config
+from fftool.errors import FftoolError, IntegrityError
+from tests.test_maps import make_scene
+from tests.test_reproduce import TINY_PIPELINE
+
+# --- the models in the repository -------------------------------------------------------------------------
+
+
+def test_the_shipped_models_are_current_and_intact() -> None:
+    """Fails whenever a code change would orphan a shipped model: the message says to retrain or re-key it."""
+    profiles = zoo.profiles()
+    assert "cpu" in profiles, f"no shipped cpu models under {zoo.models_root()}"
+    for profile in profiles:
+        models = zoo.shipped(profile)
+        assert models, f"models/{profile} ships nothing"
+        stale = zoo.orphans(models)
+        assert not stale, "\n".join(stale.values())
+        shipped_store = zoo.store(profile)
+        for model in models:
+            zoo.check(model, shipped_store)  # every file's sha256 against its manifest, and the schema version
+
+
+def test_a_changed_stage_version_orphans_the_shipped_models(monkeypatch: pytest.MonkeyPatch) -> None:
+    models = zoo.shipped("cpu")
+    cvae_stage = pipeline.STAGES["cvae"]
+    monkeypatch.setitem(pipeline.STAGES, "cvae", dataclasses.replace(cvae_stage, version=cvae_stage.version + 1))
+    stale = zoo.orphans(models)
+    expected = {m.name for m in models if m.kind in ("cvae", "dlow")}  # a DLow sampler keys on its CVAE
+    assert set(stale) == expected and expected
+    assert all("Retrain it" in line and "re-key it" in line for line in stale.values())
+    assert not any(m.name in stale for m in models if m.kind == "goal")
+
+
+# --- pack, list, install, load: a tiny profile ---------------------------------------------------------------
+
+
+@pytest.fixture
+def tiny(raw_tree: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
+    """A tiny profile trained into a store (goal U-Net, baseline and dr CVAEs, the baseline's DLow sampler), an
+    empty zoo and pipelines folder for it."""
+    make_scene(tmp_path / "scenes" / "zara1")
+    pipelines = tmp_path / "pipelines"
+    pipelines.mkdir()
+    text = TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes"))
+    (pipelines / "tiny.toml").write_text(text.replace("[dlow]\n", '[dlow]\nvariants = ["baseline"]\n'))
+    monkeypatch.setattr(zoo, "pipelines_root", lambda: pipelines)
+    monkeypatch.setenv(zoo.ENV_MODELS, str(tmp_path / "models"))
+    trained = ArtifactStore(tmp_path / "trained")
+    cfg = load_config(pipelines / "tiny.toml")
+    for kind, variant in (("goal", None), ("cvae", "baseline"), ("cvae", "dr"), ("dlow", "baseline")):
+        pipeline.run(cfg if variant is None else predictor_config(cfg, variant), trained, [kind], benchmark="zara1")
+    return {"trained": trained.root, "pipelines": pipelines, "models": tmp_path / "models", "tmp": tmp_path}
+
+
+def _cli(*args: object) -> str:
+    result = CliRunner().invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def test_pack_list_install_then_nothing_is_trained(tiny: dict[str, Path]) -> None:
+    _cli("models", "pack", "--profile", "tiny", "--benchmarks", "zara1", "--root", tiny["trained"])
+    names = {m.name for m in zoo.shipped("tiny")}
+    assert names == {"tiny/zara1/goal-unet", "tiny/zara1/baseline", "tiny/zara1/dr", "tiny/zara1/baseline/dlow"}
+    listing = _cli("models", "list", "--profile", "tiny")
+    assert "tiny/zara1/dr" in listing and "current" in listing
+    fresh = tiny["tmp"] / "fresh"
+    assert "4 model(s) installed" in _cli("models", "install", "--profile", "tiny", "--root", fresh)
+    assert "0 model(s) installed, 4 already" in _cli("models", "install", "--profile", "tiny", "--root", fresh)
+    cfg = load_config(tiny["pipelines"] / "tiny.toml")
+    for variant in ("baseline", "dr"):
+        built = pipeline.run(predictor_config(cfg, variant), ArtifactStore(fresh), ["cvae"], benchmark="zara1")
+        assert "cvae" not in built.new  # found, not trained: the model that was packed
+        assert ArtifactStore(tiny["trained"]).lookup("cvae", built["cvae"].fingerprint) is not None
+    built = pipeline.run(predictor_config(cfg, "baseline"), ArtifactStore(fresh), ["dlow"], benchmark="zara1")
+    assert "dlow" not in built.new
+    assert "goal" not in pipeline.run(cfg, ArtifactStore(fresh), ["goal"], benchmark="zara1").new
+
+
+def test_a_shipped_name_loads_the_model_its_profile_evaluates(tiny: dict[str, Path]) -> None:
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    store = ArtifactStore(tiny["trained"])
+    cfg = predictor_config(load_config(tiny["pipelines"] / "tiny.toml"), "baseline")
+    ids = {kind: pipeline.resolve(cfg, [kind], "zara1")[-1].fingerprint[:16] for kind in ("cvae", "dlow")}
+    past = np.cumsum(np.full((1, 2, 8, 2), 0.4), axis=2)
+    by_name = api.load("tiny/zara1/baseline").predict(past, np.ones((1, 2), bool), k=20, seed=3)
+    by_id = api.load(f"cvae/{ids['cvae']}", root=store.root, dlow=f"dlow/{ids['dlow']}")
+    assert np.array_equal(by_name, by_id.predict(past, np.ones((1, 2), bool), k=20, seed=3))
+    assert api.load("tiny/zara1/baseline").sampler is not None and api.load("tiny/zara1/dr").sampler is None
+    assert api.load_goal_sampler("tiny/zara1/dr") is not None
+    with pytest.raises(FftoolError, match="no shipped model tiny/zara1/re"):
+        api.load("tiny/zara1/re")
+
+
+def test_install_refuses_a_damaged_or_swapped_file_and_copies_nothing(tiny: dict[str, Path]) -> None:
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    models = {m.name: m for m in zoo.shipped("tiny")}
+    dr, baseline = models["tiny/zara1/dr"].artifact, models["tiny/zara1/baseline"].artifact
+    original = (dr.path / "model.pt").read_bytes()
+    shutil.copyfile(baseline.path / "model.pt", dr.path / "model.pt")  # another model's weights, same name
+    fresh = tiny["tmp"] / "fresh"
+    result = CliRunner().invoke(app, ["models", "install", "--profile", "tiny", "--root", str(fresh)])
+    assert result.exit_code == 1 and "model.pt: content changed" in result.output
+    assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
+    assert not fresh.exists() or not ArtifactStore(fresh).list()
+    with pytest.raises(IntegrityError, match="damaged"):
+        api.load("tiny/zara1/dr")
+    (dr.path / "model.pt").write_bytes(original[:-100])  # truncated
+    with pytest.raises(IntegrityError, match=r"model\.pt"):
+        zoo.install(ArtifactStore(fresh), zoo.shipped("tiny"))
+
+
+def test_a_profile_change_orphans_the_models_and_rekey_refuses_other_parameters(tiny: dict[str, Path]) -> None:
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    profile = tiny["pipelines"] / "tiny.toml"
+    profile.write_text(profile.read_text().replace("train_k = 2", "train_k = 3"))
+    stale = zoo.orphans(zoo.shipped("tiny"))
+    assert set(stale) == {"tiny/zara1/baseline", "tiny/zara1/dr", "tiny/zara1/baseline/dlow"}
+    result = CliRunner().invoke(app, ["models", "install", "--profile", "tiny", "--root", str(tiny["tmp"] / "x")])
+    assert result.exit_code == 1 and "Retrain it" in result.output
+    with pytest.raises(FftoolError, match="trained with other parameters \\(train_k\\); retrain it"):
+        zoo.rekey("tiny")
+
+
+def test_rekey_moves_models_whose_code_version_alone_changed(
+    tiny: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    windows_stage = pipeline.STAGES["windows"]  # upstream of everything: every fingerprint moves, no parameter
+    monkeypatch.setitem(
+        pipeline.STAGES, "windows", dataclasses.replace(windows_stage, version=windows_stage.version + 1)
+    )
+    assert len(zoo.orphans(zoo.shipped("tiny"))) == 4
+    assert len(zoo.rekey("tiny")) == 4
+    assert not zoo.orphans(zoo.shipped("tiny"))
+    moved = zoo.shipped("tiny")[0].artifact.manifest
+    assert "rekeyed_from" in moved.stats
