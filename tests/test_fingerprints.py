@@ -53,8 +53,8 @@ def _perturbed(section: BaseModel, name: str) -> Any:
         candidates = [value + "-changed"]
     elif isinstance(value, tuple):
         candidates = [value[:-1], value[1:]]
-    else:
-        candidates = [choice for choice in get_args(annotation) if choice != value]
+    else:  # a literal, or a union such as int | "auto": its other literals, then small numbers
+        candidates = [choice for choice in get_args(annotation) if choice != value] + [1, 2]
     for candidate in candidates:
         try:
             type(section).model_validate(section.model_dump() | {name: candidate})
