@@ -27,6 +27,7 @@ from sybil.evaluators.python import PythonEvaluator
 from sybil.example import SybilFailure
 from sybil.parsers.markdown import CodeBlockParser, SkipParser
 
+from fftool.zoo import ENV_MODELS
 from tests.conftest import make_raw_tree
 from tests.test_maps import make_scene
 from tests.test_reproduce import TINY_PIPELINE
@@ -48,6 +49,9 @@ GIVEN: dict[str, str] = {
     "docs/metrics.md": "fftool ingest -c pipelines/quick.toml\n"
     "fftool forces -c pipelines/quick.toml\n"
     "fftool evaluate --benchmarks zara1 --variant cv -c pipelines/quick.toml\n",
+    # "Use the trained models" installs the shipped models of the cpu profile: the checkout ships tiny ones.
+    "README.md": "fftool reproduce pipelines/cpu.toml --benchmarks zara1 --root ../zoo-training > /dev/null\n"
+    "fftool models pack --benchmarks zara1 --root ../zoo-training\n",
 }
 
 # Set-up commands (install packages, build virtual environments) take minutes and change the machine:
@@ -91,6 +95,9 @@ def make_checkout(base: Path) -> Path:
     base/checkout/pipelines/quick.toml   the tiny profile (tests/test_reproduce.py TINY_PIPELINE) under the
                                      quick profile's name, reading the two folders above by the same
                                      relative paths as the real pipelines/quick.toml
+    base/checkout/pipelines/cpu.toml     the same under the cpu profile's name, with a DLow sampler for the
+                                     baseline: the profile of the checkout's shipped models (models/, empty
+                                     until a document's GIVEN packs them; FFTOOL_MODELS points there)
     base/checkout/data/eth_ucy/raw   a copy of the synthetic tree: what `fftool fetch-data` would place there
     base/checkout/tracks.csv, goals.csv  a user's own tracks and goals, for `fftool predict` (write_user_tracks)
     """
@@ -99,9 +106,9 @@ def make_checkout(base: Path) -> Path:
     make_scene(shared / "scenes" / "zara1")
     checkout = base / "checkout"
     (checkout / "pipelines").mkdir(parents=True)
-    (checkout / "pipelines" / "quick.toml").write_text(
-        TINY_PIPELINE.format(raw="../shared/data/eth_ucy/raw", scenes="../shared/data/eth_ucy/scenes")
-    )
+    tiny = TINY_PIPELINE.format(raw="../shared/data/eth_ucy/raw", scenes="../shared/data/eth_ucy/scenes")
+    (checkout / "pipelines" / "quick.toml").write_text(tiny)
+    (checkout / "pipelines" / "cpu.toml").write_text(tiny.replace("[dlow]\n", '[dlow]\nvariants = ["baseline"]\n'))
     shutil.copytree(shared / "raw", checkout / "data" / "eth_ucy" / "raw")
     write_user_tracks(checkout)
     return checkout
@@ -119,11 +126,13 @@ def write_user_tracks(folder: Path) -> None:
     (folder / "goals.csv").write_text("agent_id,x,y\n1,11.0,0.0\n2,-4.0,1.0\n")
 
 
-def shell_env(state_file: Path) -> dict[str, str]:
-    """The environment of a block: this Python's `fftool` first on PATH, the default artifact root."""
+def shell_env(state_file: Path, checkout: Path) -> dict[str, str]:
+    """The environment of a block: this Python's `fftool` first on PATH, the default artifact root, the
+    checkout's own shipped models."""
     env = {k: v for k, v in os.environ.items() if k not in ("FFTOOL_ARTIFACTS", "BASH_ENV", "ENV")}
     env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
     env["DOC_SHELL_STATE"] = str(state_file)
+    env[ENV_MODELS] = str(checkout / "models")
     return env
 
 
@@ -159,7 +168,7 @@ class DocRun:
         done = subprocess.run(
             ["bash", "--noprofile", "--norc", str(script)],
             cwd=self.checkout,
-            env=shell_env(self.state_file),
+            env=shell_env(self.state_file, self.checkout),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,

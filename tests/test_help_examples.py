@@ -13,8 +13,10 @@ How an example maps to a run:
   synthetic raw tree at `../shared/data/eth_ucy/raw` (the default `data.raw_dir`), a scene for zara1, and
   `pipelines/quick.toml` = the tiny profile under the quick profile's name, with the real quick
   profile's `report.variants` (goal, dr, re), so that `fftool reproduce pipelines/quick.toml` trains the
-  models the `plot` examples draw, as it does for a user. Each example runs as written with bash in that
-  folder, `fftool` of this Python first on PATH and `$FFTOOL_ARTIFACTS` unset.
+  models the `plot` examples draw, as it does for a user; `pipelines/cpu.toml` = the tiny one again,
+  whose models the `fftool models` examples ship into the checkout's `models/` (`$FFTOOL_MODELS`). Each
+  example runs as written with bash in that folder, `fftool` of this Python first on PATH and
+  `$FFTOOL_ARTIFACTS` unset.
 - Order: commands in the order of `ORDER` below (a pipeline's order: data first, then each stage,
   reports, then the commands that read what those built); within a command, the epilog's order. A
   command with examples that `ORDER` lacks fails `test_every_command_with_examples_is_ordered`.
@@ -68,6 +70,11 @@ ORDER = [
     "fftool artifacts list",
     "fftool artifacts show",
     "fftool artifacts verify",
+    "fftool models",
+    "fftool models pack",  # trains the checkout's tiny cpu profile for zara1, then ships it in models/
+    "fftool models install",
+    "fftool models list",
+    "fftool models rekey",
 ]
 
 _TORCHRUN = (
@@ -78,7 +85,7 @@ NOT_RUN = {
     "fftool fetch-data --dest data/eth_ucy/raw": "downloads from the internet; tests/test_fetch.py runs it against "
     "a local server, and the checkout's data/eth_ucy/raw holds the synthetic tree in its place",
     "fftool reproduce pipelines/cpu.toml --benchmarks zara1": "the cpu profile trains for over an hour; the "
-    "test checkout has the quick profile only (the tiny one under its name), which the quick example runs",
+    "checkout's pipelines/cpu.toml is the tiny profile, which the `fftool models pack` example trains",
     "fftool reproduce pipelines/paper.toml --device cuda": "the full paper configuration needs a GPU and "
     "hours; the test checkout has the quick profile only",
     "torchrun --standalone --nproc-per-node 2 -m fftool train-goal --config pipelines/quick.toml": _TORCHRUN,
@@ -171,7 +178,7 @@ class ExampleRun:
         done = subprocess.run(
             ["bash", "--noprofile", "--norc", "-c", command],
             cwd=self.checkout,
-            env=shell_env(self.checkout.parent / "shell_state.sh"),
+            env=shell_env(self.checkout.parent / "shell_state.sh", self.checkout),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,

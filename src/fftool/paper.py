@@ -40,6 +40,19 @@ TABLE2_ADE_FDE: Final[dict[str, dict[str, tuple[float, float]]]] = {
            "zara2": (0.12, 0.20), "average": (0.19, 0.30)},
 }  # fmt: skip
 
+# Other methods' published minADE_20 / minFDE_20 (m), reference rows of Table II: printed as their papers report
+# them, never re-run (research/peers-and-users.md §1a). AgentFormer's own are the baseline row's "(paper)" cells.
+PUBLISHED_REFERENCES: Final[dict[str, dict[str, tuple[float, float]]]] = {
+    "Y-net with TTST (ICCV'21), published, not re-run": {
+        "eth": (0.28, 0.33), "hotel": (0.10, 0.14), "univ": (0.24, 0.41), "zara1": (0.17, 0.27),
+        "zara2": (0.13, 0.22), "average": (0.18, 0.27),
+    },
+    "SingularTrajectory (CVPR'24), published, not re-run": {
+        "eth": (0.35, 0.42), "hotel": (0.13, 0.19), "univ": (0.25, 0.44), "zara1": (0.19, 0.32),
+        "zara2": (0.15, 0.25), "average": (0.21, 0.32),
+    },
+}  # fmt: skip
+
 # Table III: minFDE_20 (m) per variant.
 TABLE3_FDE: Final[dict[str, dict[str, float]]] = {
     "baseline": {"eth": 0.75, "hotel": 0.22, "univ": 0.45, "zara1": 0.30, "zara2": 0.24, "average": 0.39},

@@ -32,7 +32,8 @@ def models_root() -> Path:
 
 
 def pipelines_root() -> Path:
-    return Path(__file__).resolve().parents[2] / "pipelines"
+    """The profiles the shipped models are checked against: `pipelines/` beside the models folder."""
+    return models_root().parent / "pipelines"
 
 
 def is_name(ref: str | Path) -> bool:

@@ -70,7 +70,7 @@ def models_install(
 
 @models_app.command(
     "pack",
-    epilog="Example: fftool reproduce pipelines/cpu.toml --benchmarks eth && fftool models pack --benchmarks eth",
+    epilog="Example: fftool reproduce pipelines/cpu.toml --benchmarks zara1 && fftool models pack --benchmarks zara1",
 )
 @boundary
 def models_pack(
