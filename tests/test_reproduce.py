@@ -90,6 +90,10 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     table5 = pd.read_csv(report / "table5_collision_metrics.csv").set_index("method")
     assert table5.loc["ForceFormer-Dr", "zara1 COL"] == pytest.approx(manifests["dr"]["col"], rel=1e-5)
     assert table5.loc["ForceFormer-Dr", "zara1 Col-II"] == manifests["dr"]["col_gt"]
+    table2 = pd.read_csv(report / "table2_ade_fde.csv").set_index("method")
+    assert table5.loc["ForceFormer-Dr", "zara1 JADE"] >= table2.loc["ForceFormer-Dr", "zara1 minADE"]  # joint ≥ own
+    assert table2.loc["Y-net with TTST (ICCV'21), published, not re-run", "zara1 (paper)"] == "0.17/0.27"
+    assert (report / "scores.png").is_file() and "![scores](scores.png)" in (report / "report.md").read_text()
     results = pd.read_csv(report / "results.csv")
     assert len(results) == 3 and results["grid_seed"].isna().all()  # no --seeds: each section's own seed
     folder = next(f for f in (root / "evaluate").iterdir() if f.name.startswith(folders["dr"]))

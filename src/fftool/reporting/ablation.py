@@ -27,7 +27,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
 from fftool.errors import UsageError
 from fftool.paper import PREDICTORS
-from fftool.reporting import claims, scores, tables
+from fftool.reporting import claims, score_plots, scores, tables
 from fftool.stages.evaluate import METRIC_DEFINITIONS
 
 
@@ -243,9 +243,10 @@ def write_report(
         tables.write(built, partial, _preamble(command, seconds, results), _definitions())
         (partial / REPORT_MARKER).write_text(f"written by fftool {__version__}; the next report replaces this folder\n")
         pd.DataFrame(rows).to_csv(partial / "results.csv", index=False)
-        if draw:
-            with (partial / "report.md").open("a") as report:
-                report.writelines(f"\n![{path.stem}]({path.name})\n" for path in draw(partial))
+        title = f"{profile}: minFDE and NC per benchmark ({cfg.evaluate.protocol} protocol), {grid.level:.0%} intervals"
+        drawn = [score_plots.scores_figure(grid, partial / "scores.png", title), *(draw(partial) if draw else [])]
+        with (partial / "report.md").open("a") as report:
+            report.writelines(f"\n![{path.stem}]({path.name})\n" for path in drawn)
         old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
         _check_replaceable(out_dir, f"report folder {out_dir}")  # it may have changed during a long run
         if out_dir.is_dir() and not any(out_dir.iterdir()):
