@@ -194,15 +194,17 @@ def test_the_api_refuses_a_model_of_another_schema_version(tiny_model: tuple[Pat
     import json
     import shutil
 
+    from fftool.artifacts.hashing import fingerprint
     from fftool.errors import SchemaError
 
     root, model_id = tiny_model
     store = ArtifactStore(root)
-    copy = tmp_path / "store"
-    shutil.copytree(store.resolve(model_id).path, copy / "cvae" / store.resolve(model_id).path.name)
-    manifest = copy / "cvae" / store.resolve(model_id).path.name / "manifest.json"
-    data = json.loads(manifest.read_text())
-    manifest.write_text(json.dumps(data | {"schema_version": data["schema_version"] + 1}))
+    data = json.loads((store.resolve(model_id).path / "manifest.json").read_text())
+    newer = data["schema_version"] + 1  # a model of a newer fftool: its fingerprint hashes its own version
+    fp = fingerprint("cvae", newer, data["params"], data["inputs"])
+    folder = tmp_path / "store" / "cvae" / fp[:16]
+    shutil.copytree(store.resolve(model_id).path, folder)
+    (folder / "manifest.json").write_text(json.dumps(data | {"schema_version": newer, "fingerprint": fp}))
     with pytest.raises(SchemaError, match="fftool train-cvae --force"):
-        load(manifest.parent)
+        load(folder)
     assert load(store.resolve(model_id).path).variant == "baseline"  # the untouched folder loads

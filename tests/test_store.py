@@ -15,15 +15,21 @@ from pathlib import Path
 
 import pytest
 
+from fftool.artifacts.hashing import fingerprint
 from fftool.artifacts.store import MANIFEST, ArtifactStore
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 
-FP_A = "a" * 64
-FP_B = "ab" + "c" * 62
+PARAMS, INPUTS = {"p": 1}, {"up": "0" * 64}
+FP_A = fingerprint("demo", 1, PARAMS, INPUTS)  # a manifest's fingerprint is that of its own parameters and inputs
+# Another demo artifact whose fingerprint shares FP_A's first hex digit only (for prefix lookups).
+P_B = next(n for n in range(2, 1000) if (f := fingerprint("demo", 1, {"p": n}, INPUTS))[0] == FP_A[0] != f[1])
+FP_B = fingerprint("demo", 1, {"p": P_B}, INPUTS)
 
 
-def _build(store: ArtifactStore, kind: str = "demo", fp: str = FP_A, content: str = "hello", version: int = 1):
-    with store.build(kind, fp, schema_version=version, params={"p": 1}, inputs={"up": "0" * 64}) as ctx:
+def _build(store: ArtifactStore, kind: str = "demo", p: int = 1, content: str = "hello", version: int = 1):
+    params = {"p": p}
+    with store.build(kind, fingerprint(kind, version, params, INPUTS), schema_version=version, params=params,
+                     inputs=INPUTS) as ctx:  # fmt: skip
         (ctx.dir / "data.txt").write_text(content)
         ctx.stats = {"rows": 1}
     return ctx.artifact
@@ -51,7 +57,7 @@ def test_the_manifest_records_where_it_was_built(store: ArtifactStore) -> None:
 
 def test_failed_build_leaves_nothing(tmp_path: Path) -> None:
     store = ArtifactStore(tmp_path / "fresh")
-    with pytest.raises(RuntimeError), store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:
+    with pytest.raises(RuntimeError), store.build("demo", FP_A, schema_version=1, params=PARAMS, inputs=INPUTS) as ctx:
         (ctx.dir / "half.txt").write_text("half")
         raise RuntimeError("boom")
     assert not (tmp_path / "fresh").exists()
@@ -59,7 +65,10 @@ def test_failed_build_leaves_nothing(tmp_path: Path) -> None:
 
 def test_failed_rebuild_keeps_the_old_artifact(store: ArtifactStore) -> None:
     _build(store, content="old")
-    with pytest.raises(KeyboardInterrupt), store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:
+    with (
+        pytest.raises(KeyboardInterrupt),
+        store.build("demo", FP_A, schema_version=1, params=PARAMS, inputs=INPUTS) as ctx,
+    ):
         (ctx.dir / "data.txt").write_text("new, half written")
         raise KeyboardInterrupt
     artifact = store.lookup("demo", FP_A)
@@ -79,9 +88,12 @@ KILLED_BUILD = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
+    from fftool.artifacts.hashing import fingerprint
     from fftool.artifacts.store import ArtifactStore
     store = ArtifactStore(sys.argv[1])
-    with store.build("demo", "a" * 64, schema_version=1, params={}, inputs={}) as ctx:
+    params, inputs = {"p": 1}, {"up": "0" * 64}
+    with store.build("demo", fingerprint("demo", 1, params, inputs), schema_version=1, params=params,
+                     inputs=inputs) as ctx:
         (ctx.dir / "data.txt").write_text("partial")
         Path(sys.argv[2]).write_text("started")
         time.sleep(60)
@@ -117,7 +129,7 @@ def test_unreadable_folder_is_reported_never_deleted(store: ArtifactStore, manif
     else:
         (artifact.path / MANIFEST).write_text(manifest)
     assert store.list() == []
-    with pytest.raises(IntegrityError, match="aaaaaaaaaaaaaaaa"):
+    with pytest.raises(IntegrityError, match=FP_A[:16]):
         store.lookup("demo", FP_A)
     assert (artifact.path / "data.txt").read_text() == "hello"
     [damaged] = store.damaged()
@@ -146,7 +158,7 @@ def test_concurrent_builds_of_one_fingerprint_wait_for_each_other(store: Artifac
     order: list[str] = []
 
     def build(name: str) -> None:
-        with store.build("demo", FP_A, schema_version=1, params={}, inputs={}) as ctx:
+        with store.build("demo", FP_A, schema_version=1, params=PARAMS, inputs=INPUTS) as ctx:
             order.append(f"{name} start")
             time.sleep(0.3)
             (ctx.dir / "data.txt").write_text(name)
@@ -165,20 +177,24 @@ def test_check_inputs_refuses_a_changed_input(store: ArtifactStore) -> None:
     artifact = _build(store)
     store.check_inputs({"demo": artifact}, {"demo": "fftool demo"})
     (artifact.path / "data.txt").write_text("hellO")
-    with pytest.raises(IntegrityError, match=r"artifact demo/a{16} .*data.txt: content changed.*`fftool demo --force`"):
+    with pytest.raises(
+        IntegrityError, match=rf"artifact demo/{FP_A[:16]} .*data.txt: content changed.*`fftool demo --force`"
+    ):
         store.check_inputs({"demo": artifact}, {"demo": "fftool demo"})
 
 
 def test_chain_walks_inputs_and_names_missing_ones(store: ArtifactStore) -> None:
-    with store.build("up", "1" * 64, schema_version=1, params={}, inputs={}) as ctx:
+    up_fp = fingerprint("up", 1, {}, {})
+    with store.build("up", up_fp, schema_version=1, params={}, inputs={}) as ctx:
         (ctx.dir / "u.txt").write_text("u")
     upstream = ctx.artifact
-    with store.build("down", FP_A, schema_version=1, params={}, inputs={"up": "1" * 64, "raw/x.txt": "0" * 64}) as ctx:
+    inputs = {"up": up_fp, "raw/x.txt": "0" * 64}
+    with store.build("down", fingerprint("down", 1, {}, inputs), schema_version=1, params={}, inputs=inputs) as ctx:
         (ctx.dir / "d.txt").write_text("d")
     down = ctx.artifact
     assert [a.id for a in store.chain(down)] == [down.id, upstream.id]
     shutil.rmtree(upstream.path)
-    assert store.chain(down)[1] == f"up/{'1' * 16} (an input of {down.id}) is no longer in the store"
+    assert store.chain(down)[1] == f"up/{up_fp[:16]} (an input of {down.id}) is no longer in the store"
 
 
 @pytest.mark.parametrize("ref", ["../..", "../../etc/passwd", "demo/../../x", "/etc"])
@@ -200,14 +216,15 @@ def test_verify_reports_changed_missing_and_extra_files(store: ArtifactStore) ->
 
 
 def test_resolve_by_prefix_kind_and_ambiguity(store: ArtifactStore) -> None:
-    a = _build(store, fp=FP_A)
-    b = _build(store, fp=FP_B)
-    other = _build(store, kind="other", fp="f" * 64)
-    assert store.resolve("demo/aaaa") == a
-    assert store.resolve("abc") == b
+    a = _build(store)
+    b = _build(store, p=P_B)
+    other = _build(store, kind="other")
+    assert a.fingerprint == FP_A and b.fingerprint == FP_B
+    assert store.resolve(f"demo/{FP_A[:4]}") == a
+    assert store.resolve(FP_B[:6]) == b
     assert store.resolve("other") == other
     with pytest.raises(FftoolError, match="ambiguous"):
-        store.resolve("demo/a")
+        store.resolve(f"demo/{FP_A[0]}")
     with pytest.raises(ArtifactMissing, match="no artifact matches 'demo/9'"):
         store.resolve("demo/9")
 
@@ -222,10 +239,31 @@ def test_require_names_the_command_and_checks_the_schema(store: ArtifactStore) -
 
 
 def test_a_bare_kind_is_ambiguous_when_several_exist_and_lists_them(store: ArtifactStore) -> None:
-    with store.build("cvae", FP_A, schema_version=1, params={"benchmark": "zara1", "variant": "dr"}, inputs={}) as c:
+    first, second = {"benchmark": "zara1", "variant": "dr"}, {"benchmark": "eth", "variant": "re"}
+    fp = fingerprint("cvae", 1, first, {})
+    with store.build("cvae", fp, schema_version=1, params=first, inputs={}) as c:
         (c.dir / "m").write_text("a")
-    assert store.resolve("cvae").id == f"cvae/{FP_A[:16]}"  # the only one
-    with store.build("cvae", FP_B, schema_version=1, params={"benchmark": "eth", "variant": "re"}, inputs={}) as c:
+    assert store.resolve("cvae").id == f"cvae/{fp[:16]}"  # the only one
+    with store.build("cvae", fingerprint("cvae", 1, second, {}), schema_version=1, params=second, inputs={}) as c:
         (c.dir / "m").write_text("b")
     with pytest.raises(FftoolError, match=r"'cvae' is ambiguous, 2 artifacts match: .*\(zara1 · dr\).*\(eth · re\)"):
         store.resolve("cvae")
+
+
+def test_a_manifest_that_does_not_give_its_own_fingerprint_is_not_trusted(store: ArtifactStore) -> None:
+    """An edited manifest (other parameters shown and built on) and a folder copied under another fingerprint
+    with its manifest edited to match are refused, on lookup (naming the fields a planned build differs in)
+    and by verify."""
+    artifact = _build(store)
+    data = json.loads((artifact.path / MANIFEST).read_text())
+    (artifact.path / MANIFEST).write_text(json.dumps(data | {"params": {"p": 2}}))
+    with pytest.raises(IntegrityError, match=r"params\.p differ from this build's.*not trusted"):
+        store.lookup("demo", FP_A, planned=(PARAMS, INPUTS))
+    assert store.list() == [] and len(store.damaged()) == 1
+    (artifact.path / MANIFEST).write_text(json.dumps(data))
+    assert store.lookup("demo", FP_A) is not None and store.verify(store.lookup("demo", FP_A)) == []
+    copied = store.path_for("demo", FP_B)  # the same bytes, posing as the p = P_B build
+    shutil.copytree(artifact.path, copied)
+    (copied / MANIFEST).write_text(json.dumps(data | {"fingerprint": FP_B}))
+    with pytest.raises(IntegrityError, match=rf"give fingerprint {FP_A[:16]}, not the {FP_B[:16]}.*params\.p differ"):
+        store.lookup("demo", FP_B, planned=({"p": P_B}, INPUTS))

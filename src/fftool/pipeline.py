@@ -175,12 +175,12 @@ def run(
         if stage.distributed and not distributed.leader():  # a torchrun rank > 0: rank 0 decides and installs
             built[stage.name] = _follow(cfg, store, item, built, runtime)
             continue
-        existing = None if stage.name in forced else _cached(store, stage, fp)
+        existing = None if stage.name in forced else _cached(store, item)
         if existing is not None and stage.name in targets:  # the caller reads it: check its bytes first
             store.check_inputs({stage.name: existing})
         if existing is None:
             with store.lock(stage.name, fp):  # another process may have built it while we waited
-                existing = None if stage.name in forced else _cached(store, stage, fp)
+                existing = None if stage.name in forced else _cached(store, item)
                 if existing is None:
                     started = time.perf_counter()
                     existing = _build(cfg, store, item, built, runtime)
@@ -193,8 +193,11 @@ def run(
     return built
 
 
-def _cached(store: ArtifactStore, stage: Stage, fp: str) -> Artifact | None:
-    existing = store.lookup(stage.name, fp)
+def _cached(store: ArtifactStore, item: Resolved) -> Artifact | None:
+    """The built artifact of a planned build, or None; one whose manifest does not give its own fingerprint is
+    refused, naming the parameters or inputs it records other than the plan's."""
+    stage, fp = item.stage, item.fingerprint
+    existing = store.lookup(stage.name, fp, planned=(item.params, item.inputs))
     if existing is not None:
         check_schema(existing, stage.name, stage.version, stage.command)
         log(f"stage {stage.name!r} is cached (fp {fp[:12]}…) - skipping")

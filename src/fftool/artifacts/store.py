@@ -27,7 +27,7 @@ from typing import Any
 from filelock import FileLock, Timeout
 
 from fftool import __version__
-from fftool.artifacts.hashing import sha256_file
+from fftool.artifacts.hashing import canonical_json, fingerprint, sha256_file
 from fftool.artifacts.schema import COMMANDS, VERSIONS
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
 from fftool.ui import log, warn
@@ -128,6 +128,31 @@ class Artifact:
         return self.path / name
 
 
+def _fingerprint_mismatch(manifest: Manifest) -> str | None:
+    """What is wrong when a manifest's kind, schema version, parameters and inputs do not give its fingerprint."""
+    recorded = fingerprint(manifest.kind, manifest.schema_version, manifest.params, manifest.inputs)
+    if recorded == manifest.fingerprint:
+        return None
+    return (
+        f"its parameters and inputs give fingerprint {recorded[:_FP_DIR_LEN]}, not the "
+        f"{manifest.fingerprint[:_FP_DIR_LEN]} it records"
+    )
+
+
+Planned = tuple[Mapping[str, Any], Mapping[str, str]]  # a build's (params, inputs), as its fingerprint hashes them
+
+
+def _differences(manifest: Manifest, params: Mapping[str, Any], inputs: Mapping[str, str]) -> str:
+    """The parameters and inputs a manifest records other than a planned build's: `params.lr, inputs.windows`."""
+    changed = [
+        f"{what}.{key}"
+        for what, recorded, wanted in (("params", manifest.params, params), ("inputs", manifest.inputs, inputs))
+        for key in sorted({*recorded, *wanted})
+        if canonical_json(recorded.get(key)) != canonical_json(wanted.get(key))
+    ]
+    return ", ".join(changed) or "none of its parameters or inputs"
+
+
 def _git_commit() -> str | None:
     try:
         out = subprocess.run(
@@ -210,8 +235,9 @@ class ArtifactStore:
     def path_for(self, kind: str, fp: str) -> Path:
         return self.root / kind / fp[:_FP_DIR_LEN]
 
-    def _read(self, folder: Path) -> Artifact:
-        """The artifact in `folder`; IntegrityError naming the folder when its manifest cannot be read."""
+    def _read(self, folder: Path, planned: Planned | None = None) -> Artifact:
+        """The artifact in `folder`; IntegrityError naming the folder when its manifest cannot be read or does not
+        give its own fingerprint (naming the fields that differ from a `planned` build's, when given)."""
         try:
             text = (folder / MANIFEST).read_text()
         except (OSError, UnicodeDecodeError) as exc:
@@ -225,10 +251,18 @@ class ArtifactStore:
                 f"{folder}: its manifest describes {manifest.kind}/{manifest.fingerprint[:_FP_DIR_LEN]}, "
                 "not this folder"
             )
+        mismatch = _fingerprint_mismatch(manifest)
+        if mismatch:
+            fields = "" if planned is None else f" ({_differences(manifest, *planned)} differ from this build's)"
+            raise IntegrityError(
+                f"{folder / MANIFEST}: {mismatch}{fields}: the manifest was edited, or copied from another artifact, "
+                "so the folder is not trusted"
+            )
         return Artifact(folder, manifest)
 
-    def lookup(self, kind: str, fp: str) -> Artifact | None:
-        """The complete artifact for (kind, fp), or None if there is none.
+    def lookup(self, kind: str, fp: str, planned: Planned | None = None) -> Artifact | None:
+        """The complete artifact for (kind, fp), or None if there is none; `planned`: the (params, inputs) the
+        caller computed fp from, named in the error when the folder's manifest records others.
 
         A folder at that place whose manifest cannot be read raises IntegrityError and is left as it is:
         it may be a user's file, or an artifact of a newer fftool.
@@ -236,7 +270,7 @@ class ArtifactStore:
         folder = self.path_for(kind, fp)
         if not folder.exists():
             return None
-        artifact = self._read(folder)
+        artifact = self._read(folder, planned)
         if artifact.fingerprint != fp:
             raise IntegrityError(f"{folder}: holds fingerprint {artifact.fingerprint[:24]}…, expected {fp[:24]}…")
         return artifact
@@ -313,8 +347,11 @@ class ArtifactStore:
         return artifact
 
     def verify(self, artifact: Artifact) -> list[str]:
-        """Re-hash the artifact's files; return one line per file that changed, vanished or appeared."""
-        problems = []
+        """Re-hash the artifact's files and recompute its fingerprint from its manifest; one line per file that
+        changed, vanished or appeared, and one if the manifest's parameters and inputs do not give its
+        fingerprint."""
+        mismatch = _fingerprint_mismatch(artifact.manifest)
+        problems = [f"{MANIFEST}: {mismatch}"] if mismatch else []
         on_disk = _hash_files(artifact.path)
         for name, expected in artifact.manifest.files.items():
             actual = on_disk.pop(name, None)
