@@ -208,3 +208,54 @@ def test_the_api_refuses_a_model_of_another_schema_version(tiny_model: tuple[Pat
     with pytest.raises(SchemaError, match="fftool train-cvae --force"):
         load(folder)
     assert load(store.resolve(model_id).path).variant == "baseline"  # the untouched folder loads
+
+
+def test_the_api_refuses_input_a_model_cannot_take_and_padding_never_spoils_real_agents(
+    tiny_model: tuple[Path, str],
+) -> None:
+    """NaN or inf or 1e30 in a real agent's past, a window without agents, k = 0, True or an enormous k: one
+    InputError naming where, before any work; NaN in a padded slot changes nothing for the real agents."""
+    from fftool.errors import InputError
+
+    root, model_id = tiny_model
+    model = load(model_id, root=root)
+    past = np.cumsum(np.full((2, 3, 8, 2), 0.4), axis=2)
+    past[:, 1] += 3.0
+    mask = np.array([[True, True, False], [True, False, False]])
+    clean = model.predict(past, mask, k=4, seed=1)
+    assert np.isfinite(clean[:, :, :2][np.broadcast_to(mask[:, None, :2, None, None], clean[:, :, :2].shape)]).all()
+    spoiled = past.copy()
+    spoiled[0, 2] = np.nan  # a padded slot full of NaN
+    spoiled[1, 1:] = np.inf
+    again = model.predict(spoiled, mask, k=4, seed=1)
+    real = np.broadcast_to(mask[:, None, :, None, None], clean.shape)
+    assert np.array_equal(again[real], clean[real]) and np.isfinite(again[real]).all()
+    for value in (np.nan, np.inf, 1e30):
+        bad = past.copy()
+        bad[1, 0, 5, 1] = value
+        with pytest.raises(InputError, match=r"window 1, agent 0, observed step 5"):
+            model.predict(bad, mask, k=4)
+    with pytest.raises(InputError, match="window 1: agent_mask marks no agent"):
+        model.predict(past, np.array([[True, False, False], [False, False, False]]), k=4)
+    for k in (0, -3, True, 2.5):
+        with pytest.raises(InputError, match="expected a whole number of samples"):
+            model.predict(past, mask, k=k)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="lower k"):
+        model.predict(past, mask, k=10**9)
+    from fftool.errors import UsageError
+
+    with pytest.raises(UsageError, match="device 'tpu'"):
+        load(model_id, root=root, device="tpu")
+
+
+def test_predict_refuses_a_non_finite_time_and_an_enormous_k_before_the_work(
+    tiny_model: tuple[Path, str], tmp_path: Path
+) -> None:
+    root, model_id = tiny_model
+    tracks = _walkers(tmp_path / "t.csv")
+    common = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--out", str(tmp_path / "f.parquet")]
+    nan = CliRunner().invoke(app, [*common, "--at", "nan"])
+    assert nan.exit_code == 2 and "expected finite times" in nan.output
+    huge = CliRunner().invoke(app, [*common, "--k", str(10**9)])
+    assert huge.exit_code == 1 and "lower k" in huge.output and len(huge.output.strip().splitlines()) == 1
+    assert not (tmp_path / "f.parquet").exists()

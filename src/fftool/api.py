@@ -24,7 +24,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import EvaluateConfig, GoalConfig, GoalsConfig
 from fftool.dataset.scenes import PRED_LEN
 from fftool.dataset.steps import observed_windows, prediction_steps, to_steps
-from fftool.errors import FftoolError, UsageError
+from fftool.errors import FftoolError, InputError, UsageError
 from fftool.learning import devices, goal_model
 from fftool.learning.batches import SceneMaps
 from fftool.learning.cvae_model import Trained, load_model
@@ -96,14 +96,19 @@ class Model:
     ) -> np.ndarray:
         """K futures (B, K, A, pred_len, 2) in metres for observed positions past (B, A, obs_len, 2).
 
-        agent_mask (B, A) bool marks real agents (padding slots are ignored). goals: for goal variants,
-        (B, A, 2) one goal per agent, or (B, A, K, 2) one per sample. The draws are fixed by `seed`.
+        agent_mask (B, A) bool marks real agents (padding slots are ignored, whatever they hold). goals: for goal
+        variants, (B, A, 2) one goal per agent, or (B, A, K, 2) one per sample. The draws are fixed by `seed`.
+        Input a model cannot take is an InputError naming the window, agent and step, before any work.
         """
         past, mask = np.asarray(past, dtype=np.float64), np.asarray(agent_mask, dtype=bool)
         if past.ndim != 4 or past.shape[2:] != (self.obs_len, 2) or mask.shape != past.shape[:2]:
             raise UsageError(
                 f"expected past (B, A, {self.obs_len}, 2) and agent_mask (B, A), got {past.shape} and {mask.shape}"
             )
+        check_request(past, mask, k, self.pred_len)
+        past = np.where(mask[:, :, None, None], past, 0.0)  # padding never reaches the model, NaN or not
+        if goals is not None:
+            check_goals(np.asarray(goals, dtype=np.float64), mask)
         batch = padded_batch(past, mask, self.pred_len, self.trained.forces_config, self.trained.dt_s).to(self.device)
         if not reads_goal(self.variant):
             predictor = self.predictor(k, seed)
@@ -117,6 +122,49 @@ class Model:
             goals_k = goals_t.transpose(1, 2) if per_sample else goals_t[:, None].expand(-1, k, -1, -1)
         with torch.no_grad():
             return predictor(batch, goals_k).cpu().numpy()
+
+
+# Coordinates beyond this many metres from the origin are no pedestrian scene: a unit or a sentinel value.
+MAX_ABS_COORDINATE_M = 1e5
+# The most future coordinates one call may return (B · K · A · pred_len · 2 floats: 2 GiB).
+MAX_OUTPUT_VALUES = 2**28
+
+
+def check_k(k: object, agent_slots: int, pred_len: int) -> None:
+    """k must be a whole number ≥ 1 whose futures for `agent_slots` agents fit in memory (MAX_OUTPUT_VALUES)."""
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise InputError(f"k = {k!r}: expected a whole number of samples per agent, at least 1")
+    values = agent_slots * int(k) * pred_len * 2
+    if values > MAX_OUTPUT_VALUES:
+        raise InputError(
+            f"k = {k} for {agent_slots} agent(s) asks for {values:,} future coordinates (at most "
+            f"{MAX_OUTPUT_VALUES:,} per call): lower k, or predict fewer agents or times per call"
+        )
+
+
+def check_request(past: np.ndarray, mask: np.ndarray, k: object, pred_len: int) -> None:
+    """Refuse what a model cannot take, naming where: a k that is not a whole number ≥ 1 or asks for more
+    futures than fit in memory, a window without agents, a non-finite or absurd coordinate of a real agent."""
+    check_k(k, past.shape[0] * past.shape[1], pred_len)
+    empty = np.flatnonzero(~mask.any(1))
+    if empty.size:
+        raise InputError(f"window {empty[0]}: agent_mask marks no agent; give every window at least one")
+    bad = mask[:, :, None] & ~(np.isfinite(past) & (np.abs(past) <= MAX_ABS_COORDINATE_M)).all(-1)
+    if bad.any():
+        b, a, t = (int(i) for i in np.argwhere(bad)[0])
+        raise InputError(
+            f"window {b}, agent {a}, observed step {t}: position {past[b, a, t].tolist()} is not a finite "
+            f"coordinate within ±{MAX_ABS_COORDINATE_M:g} m (mask the agent out, or give its position in metres)"
+        )
+
+
+def check_goals(goals: np.ndarray, mask: np.ndarray) -> None:
+    """Goals of real agents must be finite coordinates within the same bounds as positions."""
+    real = mask if goals.ndim == 3 else mask[:, :, None]
+    bad = real & ~(np.isfinite(goals) & (np.abs(goals) <= MAX_ABS_COORDINATE_M)).all(-1)
+    if bad.any():
+        where = ", ".join(str(int(i)) for i in np.argwhere(bad)[0])
+        raise InputError(f"goals[{where}]: not a finite coordinate within ±{MAX_ABS_COORDINATE_M:g} m")
 
 
 def load(
@@ -188,8 +236,11 @@ def predict_tracks(
     agent id, or goal_sampler: K goals per agent from a goal U-Net (goal variants need one of them).
     Returns one row per (time, agent, sample, step): time_s, agent, sample, step, x, y, goal_x, goal_y.
     """
+    if not isinstance(at, str) and not np.isfinite(np.asarray(at, dtype=np.float64)).all():
+        raise InputError(f"prediction times {at}: expected finite seconds")
     steps = to_steps(source, tracks, model.step_s, max_gap_s)
     found = observed_windows(source, steps, model.obs_len, prediction_steps(steps, at))
+    check_k(k, len(found.xy), model.pred_len)
     scenes = scene_set(
         found.xy, found.window, found.agent, model.pred_len, model.trained.forces_config, model.trained.dt_s
     )

@@ -56,5 +56,10 @@ class IntegrityError(FftoolError):
     """An artifact's files no longer match the hashes in its manifest."""
 
 
+class InputError(FftoolError, ValueError):
+    """Input a model cannot take (non-finite or absurd coordinates, a window without agents, a bad k): names
+    the batch, agent and step. The API raises it where the CLI prints one line (exit 1)."""
+
+
 class FetchError(FftoolError):
     """A download failed or its checksum did not match."""

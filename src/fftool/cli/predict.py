@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -14,9 +15,12 @@ def _times(value: str) -> str | list[float]:
     if value in ("last", "all"):
         return value
     try:
-        return [float(v) for v in value.split(",")]
+        times = [float(v) for v in value.split(",")]
     except ValueError:
         raise typer.BadParameter(f"{value!r}: expected last, all or comma-separated times in seconds") from None
+    if not all(math.isfinite(t) for t in times):
+        raise typer.BadParameter(f"{value!r}: expected finite times in seconds (not nan or inf)")
+    return times
 
 
 @app.command(
