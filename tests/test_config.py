@@ -113,3 +113,14 @@ def test_the_name_lists_are_defined_once() -> None:
         load_config(overrides=["cvae.variant=teleport"])
     assert predictor_config(PipelineConfig(), "dr").cvae.variant == "dr"
     assert predictor_config(PipelineConfig(), "cv").evaluate.predictor == "cv"
+
+
+@pytest.mark.parametrize("key", ["cvae.epochs", "cvae.lr", "goal.batch_size", "evaluate.k", "report.bootstrap_block"])
+def test_a_boolean_is_never_read_as_a_number(tmp_path: Path, key: str) -> None:
+    """`epochs = true` was read as 1 (pydantic's lax mode): a typo must be refused, naming the key."""
+    section, name = key.split(".")
+    path = tmp_path / "p.toml"
+    path.write_text(f"[{section}]\n{name} = true\n")
+    with pytest.raises(ConfigError, match=rf"{key}: Value error, expected .*not the boolean true"):
+        load_config(path)
+    assert load_config(None, ["cvae.rotate=false"]).cvae.rotate is False  # a boolean where one belongs

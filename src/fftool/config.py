@@ -12,9 +12,9 @@ import math
 import sys
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Final, Literal
+from typing import Annotated, Any, Final, Literal, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from fftool.dataset.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Part
@@ -35,6 +35,31 @@ DEFAULT_SCENES_DIR = "../shared/data/eth_ucy/scenes"
 class _Section(BaseModel):
     # No inf or nan anywhere: they would pass most range checks, train to NaN and break the manifest's JSON.
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_booleans_for_numbers(cls, value: Any, info: ValidationInfo) -> Any:
+        """`epochs = true` is a typo, not 1: pydantic's lax mode would read a boolean as a number."""
+        if isinstance(value, bool) and info.field_name is not None:
+            annotation = cls.model_fields[info.field_name].annotation
+            if bool not in _leaf_types(annotation):
+                raise ValueError(f"expected {_type_name(annotation)}, not the boolean {str(value).lower()}")
+        return value
+
+
+def _leaf_types(annotation: Any) -> set[Any]:
+    """The plain types a field's annotation admits (through unions, Annotated and Literal values' types)."""
+    origin, args = get_origin(annotation), get_args(annotation)
+    if origin is Literal:
+        return {type(arg) for arg in args}
+    if origin is None:
+        return {annotation}
+    return {leaf for arg in args for leaf in _leaf_types(arg)}
+
+
+def _type_name(annotation: Any) -> str:
+    names = sorted(getattr(t, "__name__", str(t)) for t in _leaf_types(annotation))
+    return " or ".join(names)
 
 
 def _expected(key: str, expected: str, got: Any) -> PydanticCustomError:
