@@ -259,3 +259,14 @@ def test_predict_refuses_a_non_finite_time_and_an_enormous_k_before_the_work(
     huge = CliRunner().invoke(app, [*common, "--k", str(10**9)])
     assert huge.exit_code == 1 and "lower k" in huge.output and len(huge.output.strip().splitlines()) == 1
     assert not (tmp_path / "f.parquet").exists()
+
+
+def test_an_empty_track_file_is_one_clear_error(tmp_path: Path) -> None:
+    """A 0-byte CSV once ended in 'unexpected Error: Could not determine delimiter'."""
+    from fftool.dataset.trackfiles import Columns, read_tracks
+    from fftool.errors import RawDataError
+
+    empty = tmp_path / "tracks.csv"
+    empty.write_bytes(b"")
+    with pytest.raises(RawDataError, match=r"tracks\.csv: empty file: expected a table with a header line"):
+        read_tracks(empty, Columns(), "m", None, frame_step_s=0.4)

@@ -8,6 +8,7 @@ times in seconds.
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -40,13 +41,15 @@ def read_table(path: Path) -> pd.DataFrame:
     """The file as read: CSV (any delimiter pandas sniffs) or Parquet, chosen by extension."""
     if not path.is_file():
         raise RawDataError(path, "file not found")
+    if path.stat().st_size == 0:
+        raise RawDataError(path, "empty file: expected a table with a header line (time or frame, agent, x, y)")
     suffix = path.suffix.lower()
     try:
         if suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         if suffix in (".csv", ".txt", ".tsv"):
             return pd.read_csv(path, sep=None, engine="python", dtype=str, skipinitialspace=True)
-    except (ValueError, OSError, UnicodeDecodeError, pd.errors.ParserError) as exc:
+    except (ValueError, OSError, UnicodeDecodeError, pd.errors.ParserError, csv.Error) as exc:
         raise RawDataError(path, f"not a readable {suffix.lstrip('.')} table ({' '.join(str(exc).split())})") from exc
     raise RawDataError(path, f"unknown file type {suffix!r}: expected .csv or .parquet")
 
