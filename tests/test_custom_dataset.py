@@ -140,8 +140,13 @@ test = ["test.csv"]
             r"gone.csv: file not found \(files.test of",
         ),
         (lambda t: t + "colour = 1\n", r"dataset.toml: files.colour: unknown field"),
+        (
+            lambda t: t.replace('test = ["test.csv"]', 'test = ["./train.csv"]'),
+            r"dataset.toml: files.train and files.test both name './train.csv': test numbers would measure "
+            r"training data; .*allow_shared_files = true",
+        ),
     ],
-    ids=["missing-field", "unknown-unit", "name-clash", "negative-step", "missing-file", "unknown-field"],
+    ids=["missing-field", "unknown-unit", "name-clash", "negative-step", "missing-file", "unknown-field", "shared"],
 )
 def test_a_bad_dataset_toml_is_one_line_naming_file_and_field(tmp_path: Path, edit, message: str) -> None:
     for part in ("train", "val", "test"):
@@ -152,3 +157,16 @@ def test_a_bad_dataset_toml_is_one_line_naming_file_and_field(tmp_path: Path, ed
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("Error: "), result.output
     assert re.search(message, lines[0]), lines[0]
+
+
+def test_a_shared_file_is_accepted_when_the_toml_says_so_and_changes_no_fingerprint(tmp_path: Path) -> None:
+    from fftool.dataset.custom import load_dataset
+
+    for part in ("train", "val", "test"):
+        (tmp_path / f"{part}.csv").write_text("time,agent_id,x,y\n0,1,0,0\n0.4,1,0.5,0\n")
+    (tmp_path / "a.toml").write_text(GOOD)
+    (tmp_path / "b.toml").write_text(GOOD.replace("[columns]", "allow_shared_files = true\n\n[columns]"))
+    assert load_dataset(tmp_path / "a.toml").input_hashes() == load_dataset(tmp_path / "b.toml").input_hashes()
+    shared = GOOD.replace('val = ["val.csv"]', 'val = ["train.csv"]')
+    (tmp_path / "c.toml").write_text(shared.replace("[columns]", "allow_shared_files = true\n\n[columns]"))
+    assert load_dataset(tmp_path / "c.toml").spec.files.val == ["train.csv"]

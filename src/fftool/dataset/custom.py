@@ -77,6 +77,9 @@ class DatasetSpec(_Strict):
     max_gap_s: float | None = Field(None, gt=0)
     scene_image: str | None = None
     homography: str | None = None  # 3×3 text matrix, image pixel -> world metres (like ETH's H.txt)
+    # A file named by two parts (or twice by one) is refused: test numbers would measure training data. Set
+    # true to accept it knowingly (not part of any fingerprint: it changes no data).
+    allow_shared_files: bool = False
 
     @field_validator("name")
     @classmethod
@@ -84,6 +87,27 @@ class DatasetSpec(_Strict):
         if name in RESERVED:
             raise ValueError(f"{name!r} is an ETH/UCY benchmark name; choose another")
         return name
+
+    @model_validator(mode="after")
+    def _parts_share_no_file(self) -> DatasetSpec:
+        if self.allow_shared_files:
+            return self
+        seen: dict[str, str] = {}
+        for part in PARTS:
+            for name in getattr(self.files, part):
+                key = Path(name).as_posix().removeprefix("./")
+                if key in seen:
+                    raise ValueError(
+                        f"files.{seen[key]} and files.{part} both name {name!r}: "
+                        + (
+                            "test numbers would measure training data"
+                            if seen[key] != part
+                            else "its rows would count twice"
+                        )
+                        + "; give each part its own files, or set allow_shared_files = true to accept it"
+                    )
+                seen[key] = part
+        return self
 
     @model_validator(mode="after")
     def _image_with_homography(self) -> DatasetSpec:
@@ -125,7 +149,7 @@ class Dataset:
 
     def input_hashes(self) -> dict[str, str]:
         """What the tracks fingerprint hashes: the description (not its paths' spelling) and each file's bytes."""
-        described = self.spec.model_dump(mode="json", exclude={"scene_image", "homography"})
+        described = self.spec.model_dump(mode="json", exclude={"scene_image", "homography", "allow_shared_files"})
         hashes = {"dataset": hashlib.sha256(json.dumps(described, sort_keys=True).encode()).hexdigest()}
         for part, source, path in self.files():
             if not path.is_file():
@@ -172,15 +196,17 @@ def _load(path: Path, mtime_ns: int, size: int) -> Dataset:  # the stat keys the
         return Dataset(DatasetSpec.model_validate(raw), path)
     except ValidationError as exc:
         issue = exc.errors()[0]
-        field = ".".join(str(p) for p in issue["loc"]) or "(top level)"
+        field = ".".join(str(p) for p in issue["loc"])  # empty: a check across fields, which names them
         if issue["type"] == "missing":
             problem = "missing"
         elif issue["type"] == "extra_forbidden":
             problem = "unknown field"
         else:
-            problem = f"{issue['msg'].removeprefix('Value error, ')} (got {issue.get('input')!r})"
+            given = issue.get("input")
+            got = "" if isinstance(given, (dict, list)) else f" (got {given!r})"
+            problem = f"{issue['msg'].removeprefix('Value error, ')}{got}"
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-        raise RawDataError(path, f"{field}: {problem}{more}") from exc
+        raise RawDataError(path, f"{field + ': ' if field else ''}{problem}{more}") from exc
 
 
 def valid_name(name: str) -> bool:
