@@ -25,7 +25,7 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from fftool.dataset.scenes import BENCHMARKS, PARTS
-from fftool.dataset.steps import to_steps
+from fftool.dataset.steps import RESAMPLING_VERSION, to_steps
 from fftool.dataset.trackfiles import Columns, read_tracks
 from fftool.errors import RawDataError
 
@@ -151,6 +151,7 @@ class Dataset:
         """What the tracks fingerprint hashes: the description (not its paths' spelling) and each file's bytes."""
         described = self.spec.model_dump(mode="json", exclude={"scene_image", "homography", "allow_shared_files"})
         hashes = {"dataset": hashlib.sha256(json.dumps(described, sort_keys=True).encode()).hexdigest()}
+        hashes["resampling"] = str(RESAMPLING_VERSION)  # how to_steps puts the files on the grid
         for part, source, path in self.files():
             if not path.is_file():
                 raise RawDataError(path, f"file not found (files.{part} of {self.path})")

@@ -19,6 +19,9 @@ from fftool.dataset.windowing import slice_sequence
 from fftool.errors import RawDataError, UsageError
 
 _ON_GRID = 1e-6  # a time within this many steps of a grid point is on it
+# How tracks are put on the grid; a custom dataset's tracks fingerprint hashes it (dataset/custom.py), so a
+# change here rebuilds them. 2: each time snapped onto the grid on its own (1 dropped near-grid end points).
+RESAMPLING_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -52,9 +55,11 @@ def to_steps(path: Path, tracks: pd.DataFrame, step_s: float, max_gap_s: float) 
             f"longer than {max_gap_s:g} s that interpolation would invent; split the track or raise the gap limit",
         )
     rel = (time - last) / step_s
-    on_grid = bool(np.all(np.abs(rel - np.round(rel)) < _ON_GRID))
-    if on_grid:
-        rel = np.round(rel)
+    # A time on the grid up to floating-point rounding (a frame number times a frame step, a unit converted)
+    # is snapped onto it, each on its own: ceil/floor of an unsnapped -2.9999999997 would drop that observation.
+    near = np.abs(rel - np.round(rel)) < _ON_GRID
+    on_grid = bool(near.all())
+    rel = np.where(near, np.round(rel), rel)
     first, end = np.ceil(rel[np.r_[True, ~same]]), np.floor(rel[np.r_[~same, True]])
     counts = np.maximum(end - first + 1, 0).astype(np.int64)  # (P,) grid points per agent
     grid_agent = np.repeat(np.arange(len(counts)), counts)
