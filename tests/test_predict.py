@@ -127,7 +127,11 @@ def test_tracks_at_another_rate_are_resampled_with_a_warning(tiny_model: tuple[P
     args = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--out", str(tmp_path / "o.parquet")]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert "linear interpolation" in result.output
+    assert "the other 30 lie between its points and were not used" in result.output  # every 4th sample is on it
+    pd.DataFrame({"t": step * 0.3, "id": 7, "x": step * 0.3, "y": 0.0}).to_csv(tracks, index=False)  # 0.3 s
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "by linear interpolation onto the model's 0.4 s step" in result.output
 
 
 @pytest.mark.parametrize(

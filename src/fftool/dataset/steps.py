@@ -75,12 +75,17 @@ def to_steps(path: Path, tracks: pd.DataFrame, step_s: float, max_gap_s: float) 
     xy = tracks[["x", "y"]].to_numpy()
     grid_xy = np.where(exact[:, None], xy[right], xy[left] + weight * (xy[right] - xy[left]))
     warnings = []
+    native = float(np.median(np.diff(time)[same])) if same.any() else step_s
     if not exact.all():
-        native = float(np.median(np.diff(time)[same])) if same.any() else step_s
         how = "resampled" if not on_grid else "filled"
         warnings.append(
             f"{path}: {how} {int((~exact).sum())} of {exact.size} positions by linear interpolation onto the "
             f"model's {step_s:g} s step (the file's step is {native:.4g} s)"
+        )
+    elif not on_grid:
+        warnings.append(
+            f"{path}: read the {exact.size} positions on the model's {step_s:g} s grid; the other "
+            f"{int((~near).sum())} lie between its points and were not used (the file's step is {native:.4g} s)"
         )
     return StepTracks(grid_agent.astype(np.int64), grid_step.astype(np.int64), grid_xy, labels, last, step_s, warnings)
 
