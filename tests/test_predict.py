@@ -274,3 +274,16 @@ def test_an_empty_track_file_is_one_clear_error(tmp_path: Path) -> None:
     empty.write_bytes(b"")
     with pytest.raises(RawDataError, match=r"tracks\.csv: empty file: expected a table with a header line"):
         read_tracks(empty, Columns(), "m", None, frame_step_s=0.4)
+
+
+def test_predict_never_replaces_a_symlink_given_as_out(tiny_model: tuple[Path, str], tmp_path: Path) -> None:
+    """--out as a link to fftool's own prediction file once replaced the link with a file."""
+    root, model_id = tiny_model
+    tracks, own = _walkers(tmp_path / "t.csv"), tmp_path / "own.parquet"
+    common = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--k", "2"]
+    assert CliRunner().invoke(app, [*common, "--out", str(own)]).exit_code == 0
+    link = tmp_path / "link.parquet"
+    link.symlink_to(own)
+    result = CliRunner().invoke(app, [*common, "--out", str(link)])
+    assert result.exit_code == 2 and "a symbolic link" in result.output
+    assert link.is_symlink() and link.resolve() == own.resolve()
