@@ -504,14 +504,15 @@ FAILURES = [
          _tampered_model(_misfit_model), 1, ("{model}", "not a valid fftool checkpoint", "do not fit")),
     # environment faults
     Fail("disk-full-hashing", "ENOSPC while the new artifact's files are hashed", _disk_full_hashing, 1,
-         ("No space left on device",)),
+         ("stage 'windows'", ".incomplete/windows-", "No space left on device", "no partial artifact was kept")),
     Fail("disk-full-manifest", "ENOSPC (after a torn write) on the new manifest", _disk_full_manifest, 1,
-         ("manifest.json", "No space left on device")),
+         ("stage 'windows'", "manifest.json", "No space left on device")),
     Fail("interrupted-build", "KeyboardInterrupt inside the windows build, after it wrote its files",
          _stage_raises(KeyboardInterrupt()), 1, ("interrupted", "no partial artifact was kept")),
     Fail("bug-in-stage", "an unexpected RuntimeError inside a build", _stage_raises(RuntimeError("boom")), 1,
          ("unexpected RuntimeError: boom", "FFTOOL_DEBUG=1")),
-    Fail("read-only-root", "os.replace in the store raises EROFS", _read_only_root, 1, ("Read-only file system",)),
+    Fail("read-only-root", "os.replace in the store raises EROFS", _read_only_root, 1,
+         ("stage 'windows'", "Read-only file system")),
 ]  # fmt: skip
 
 

@@ -219,6 +219,28 @@ def _build(
     started = time.perf_counter()
     store.check_inputs(inputs)
     checked_s = time.perf_counter() - started
+    try:
+        return _build_checked(cfg, store, item, inputs, runtime, started, checked_s)
+    except OSError as exc:  # a full disk, a read-only root: say which stage and file, not the errno alone
+        if isinstance(exc, FftoolError):
+            raise
+        where = exc.filename or store.root
+        raise FftoolError(
+            f"stage {stage.name!r} ({item.description}): {where}: {exc.strerror or exc}; no partial artifact was kept"
+        ) from exc
+
+
+def _build_checked(
+    cfg: PipelineConfig,
+    store: ArtifactStore,
+    item: Resolved,
+    inputs: Mapping[str, Artifact],
+    runtime: Runtime,
+    started: float,
+    checked_s: float,
+) -> Artifact:
+    """`_build` once its inputs passed their check: the atomic build itself."""
+    stage, fp = item.stage, item.fingerprint
     with (
         store.build(
             stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs, sources=item.sources
