@@ -50,22 +50,34 @@ def test_a_changed_stage_version_orphans_the_shipped_models(monkeypatch: pytest.
 # --- pack, list, install, load: a tiny profile ---------------------------------------------------------------
 
 
-@pytest.fixture
-def tiny(raw_tree: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
-    """A tiny profile trained into a store (goal U-Net, baseline and dr CVAEs, the baseline's DLow sampler), an
-    empty zoo and pipelines folder for it."""
-    make_scene(tmp_path / "scenes" / "zara1")
-    pipelines = tmp_path / "pipelines"
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A tiny profile trained once for the module (goal U-Net, baseline and dr CVAEs, the baseline's DLow
+    sampler): its pipelines folder and its store."""
+    from tests.conftest import make_raw_tree
+
+    base = tmp_path_factory.mktemp("zoo")
+    raw = make_raw_tree(base / "raw")
+    make_scene(base / "scenes" / "zara1")
+    pipelines = base / "pipelines"
     pipelines.mkdir()
-    text = TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes"))
+    text = TINY_PIPELINE.format(raw=str(raw), scenes=str(base / "scenes"))
     (pipelines / "tiny.toml").write_text(text.replace("[dlow]\n", '[dlow]\nvariants = ["baseline"]\n'))
-    monkeypatch.setattr(zoo, "pipelines_root", lambda: pipelines)
-    monkeypatch.setenv(zoo.ENV_MODELS, str(tmp_path / "models"))
-    trained = ArtifactStore(tmp_path / "trained")
+    store = ArtifactStore(base / "trained")
     cfg = load_config(pipelines / "tiny.toml")
     for kind, variant in (("goal", None), ("cvae", "baseline"), ("cvae", "dr"), ("dlow", "baseline")):
-        pipeline.run(cfg if variant is None else predictor_config(cfg, variant), trained, [kind], benchmark="zara1")
-    return {"trained": trained.root, "pipelines": pipelines, "models": tmp_path / "models", "tmp": tmp_path}
+        pipeline.run(cfg if variant is None else predictor_config(cfg, variant), store, [kind], benchmark="zara1")
+    return pipelines, store.root
+
+
+@pytest.fixture
+def tiny(trained: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
+    """The trained tiny profile with a pipelines folder and an empty zoo of this test's own."""
+    pipelines = tmp_path / "pipelines"
+    shutil.copytree(trained[0], pipelines)  # a test may edit the profile
+    monkeypatch.setattr(zoo, "pipelines_root", lambda: pipelines)
+    monkeypatch.setenv(zoo.ENV_MODELS, str(tmp_path / "models"))
+    return {"trained": trained[1], "pipelines": pipelines, "models": tmp_path / "models", "tmp": tmp_path}
 
 
 def _cli(*args: object) -> str:

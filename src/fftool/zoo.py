@@ -93,7 +93,10 @@ def profile_config(profile: str) -> PipelineConfig:
 def store(profile: str, root: Path | None = None) -> ArtifactStore:
     folder = (root or models_root()) / profile
     if not folder.is_dir():
-        raise UsageError(f"no shipped models for profile {profile!r} (looked in {folder})")
+        raise UsageError(
+            f"no shipped models for profile {profile!r} (looked in {folder}; ${ENV_MODELS} names the models/ folder "
+            "of an fftool checkout when fftool is installed from elsewhere)"
+        )
     return ArtifactStore(folder)
 
 
