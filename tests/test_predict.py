@@ -287,3 +287,32 @@ def test_predict_never_replaces_a_symlink_given_as_out(tiny_model: tuple[Path, s
     result = CliRunner().invoke(app, [*common, "--out", str(link)])
     assert result.exit_code == 2 and "a symbolic link" in result.output
     assert link.is_symlink() and link.resolve() == own.resolve()
+
+
+def test_predict_and_the_api_refuse_a_damaged_or_swapped_model_file(
+    tiny_model: tuple[Path, str], tmp_path: Path
+) -> None:
+    """One flipped bit in model.pt gave all-NaN futures with exit 0, and another model's model.pt copied into
+    the folder was loaded silently: every load now checks the files against the manifest first."""
+    import shutil
+
+    from fftool.errors import IntegrityError
+
+    root, model_id = tiny_model
+    original = ArtifactStore(root).resolve(model_id)
+    copy_root = tmp_path / "store"
+    folder = copy_root / "cvae" / original.path.name
+    shutil.copytree(original.path, folder)
+    for chain_kind in ("windows",):  # the model's windows artifact, for the API's window layout
+        for up in (root / chain_kind).iterdir():
+            shutil.copytree(up, copy_root / chain_kind / up.name)
+    weights = bytearray((folder / "model.pt").read_bytes())
+    weights[len(weights) // 2] ^= 0x01  # one bit
+    (folder / "model.pt").write_bytes(bytes(weights))
+    tracks = _walkers(tmp_path / "t.csv")
+    args = ["predict", str(tracks), "--model", model_id, "--root", str(copy_root), "--out", str(tmp_path / "o.parquet")]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 1 and "model.pt: content changed" in result.output
+    assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "o.parquet").exists()
+    with pytest.raises(IntegrityError, match=r"model\.pt: content changed"):
+        load(folder)
