@@ -316,3 +316,37 @@ def test_predict_and_the_api_refuse_a_damaged_or_swapped_model_file(
     assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "o.parquet").exists()
     with pytest.raises(IntegrityError, match=r"model\.pt: content changed"):
         load(folder)
+
+
+def test_generated_api_input_gives_finite_futures_or_one_clear_error(tiny_model: tuple[Path, str]) -> None:
+    """Hypothesis draws windows, masks, coordinates (NaN, inf, huge included) and k: the API returns finite
+    futures for the real agents or raises InputError / UsageError, never a traceback or NaN out of finite input."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from hypothesis.extra.numpy import arrays
+
+    from fftool.errors import InputError, UsageError
+
+    root, model_id = tiny_model
+    model = load(model_id, root=root)
+    coordinate = st.one_of(st.floats(-30, 30), st.sampled_from([np.nan, np.inf, -np.inf, 1e30, 0.0]))
+
+    @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(
+        past=st.integers(1, 3).flatmap(
+            lambda b: st.integers(1, 4).flatmap(lambda a: arrays(np.float64, (b, a, 8, 2), elements=coordinate))
+        ),
+        data=st.data(),
+        k=st.one_of(st.integers(-1, 6), st.just(True), st.floats(0.5, 3)),
+    )
+    def check(past: np.ndarray, data: st.DataObject, k: object) -> None:
+        mask = data.draw(arrays(np.bool_, past.shape[:2]))
+        try:
+            futures = model.predict(past, mask, k=k)  # type: ignore[arg-type]
+        except (InputError, UsageError) as exc:
+            assert "\n" not in str(exc)
+            return
+        assert futures.shape == (past.shape[0], k, past.shape[1], 12, 2)
+        assert np.isfinite(futures[np.broadcast_to(mask[:, None, :, None, None], futures.shape)]).all()
+
+    check()

@@ -131,3 +131,48 @@ def test_an_empty_or_blank_file_is_refused(tmp_path: Path, text: str) -> None:
     path.write_text(text)
     with pytest.raises(RawDataError, match=r"tracks\.csv: "):
         _steps(path)
+
+
+TOML_VALUES = st.one_of(
+    st.integers(-3, 3), st.floats(allow_nan=False, allow_infinity=False, width=32), st.booleans(),
+    st.text(alphabet="abcxyz./_-", max_size=8), st.lists(st.text(alphabet="abc.csv", max_size=6), max_size=3),
+)  # fmt: skip
+TOML_KEYS = st.sampled_from(
+    ["name", "time_step_s", "units", "max_gap_s", "scene_image", "homography", "allow_shared_files", "colour"]
+)
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, str):
+        return '"' + value + '"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return repr(value)
+
+
+@FUZZ
+@given(
+    top=st.dictionaries(TOML_KEYS, TOML_VALUES, max_size=5),
+    files=st.dictionaries(st.sampled_from(["train", "val", "test", "extra"]), TOML_VALUES, max_size=4),
+    columns=st.dictionaries(st.sampled_from(["time", "frame", "agent", "x", "y"]), TOML_VALUES, max_size=3),
+)
+def test_any_generated_dataset_toml_is_read_or_refused_in_one_line(
+    tmp_path: Path, top: dict, files: dict, columns: dict
+) -> None:
+    from fftool.dataset.custom import load_dataset
+
+    for name in ("a.csv", "b.csv", "c.csv"):
+        (tmp_path / name).write_text("time,agent_id,x,y\n0,1,0,0\n0.4,1,0.5,0\n")
+    lines = [f"{key} = {_toml_value(value)}" for key, value in top.items()]
+    for table, entries in (("files", files), ("columns", columns)):
+        lines += [f"[{table}]"] + [f"{key} = {_toml_value(value)}" for key, value in entries.items()]
+    path = tmp_path / "dataset.toml"
+    path.write_text("\n".join(lines) + "\n")
+    try:
+        dataset = load_dataset(path)
+    except FftoolError as exc:
+        assert isinstance(exc, RawDataError) and "\n" not in str(exc) and "dataset.toml" in str(exc)
+        return
+    assert dataset.spec.time_step_s > 0 and dataset.spec.files.train
