@@ -331,7 +331,9 @@ def test_generated_api_input_gives_finite_futures_or_one_clear_error(tiny_model:
     model = load(model_id, root=root)
     coordinate = st.one_of(st.floats(-30, 30), st.sampled_from([np.nan, np.inf, -np.inf, 1e30, 0.0]))
 
-    @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+    from tests.test_track_files import FUZZ_EXAMPLES
+
+    @settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck))
     @given(
         past=st.integers(1, 3).flatmap(
             lambda b: st.integers(1, 4).flatmap(lambda a: arrays(np.float64, (b, a, 8, 2), elements=coordinate))

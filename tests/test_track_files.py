@@ -7,6 +7,7 @@ generator draws is either read into finite tracks or refused with one RawDataErr
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,9 @@ from fftool.dataset.trackfiles import read_tracks
 from fftool.errors import FftoolError, RawDataError
 
 STEP_S = 0.4
-FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# 40 generated inputs per property in the suite; benchmarks/bench_fuzz.py runs them long (FFTOOL_FUZZ_EXAMPLES).
+FUZZ_EXAMPLES = int(os.environ.get("FFTOOL_FUZZ_EXAMPLES", "40"))
+FUZZ = settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
 @st.composite
