@@ -61,7 +61,12 @@ ORDER = [
     "fftool train-cvae",
     "fftool train-dlow",  # over the dr CVAE train-cvae built
     "fftool evaluate",
-    "fftool predict",  # reads the dr model train-cvae built, and the checkout's tracks.csv and goals.csv
+    "fftool models",
+    "fftool models pack",  # trains the checkout's tiny cpu profile for zara1, then ships it in models/
+    "fftool models install",
+    "fftool models list",
+    "fftool models rekey",
+    "fftool predict",  # the dr model train-cvae built, a shipped one, and the checkout's tracks.csv and goals.csv
     "fftool reproduce",
     "fftool ablate",
     "fftool plot",
@@ -70,11 +75,6 @@ ORDER = [
     "fftool artifacts list",
     "fftool artifacts show",
     "fftool artifacts verify",
-    "fftool models",
-    "fftool models pack",  # trains the checkout's tiny cpu profile for zara1, then ships it in models/
-    "fftool models install",
-    "fftool models list",
-    "fftool models rekey",
 ]
 
 _TORCHRUN = (
