@@ -55,7 +55,7 @@ def _cvae_and_sampler(
     for a shipped model's name, the one its profile evaluates it with."""
     if zoo.is_name(ref):
         bundle = zoo.find(str(ref))
-        store, cvae, sampler = zoo.store(str(ref).split("/")[0]), bundle.cvae, bundle.dlow
+        store, cvae, sampler = bundle.store, bundle.cvae, bundle.dlow
     else:
         store, cvae = find_artifact(ref, "cvae", root)
         sampler = None
@@ -149,7 +149,7 @@ def check_request(past: np.ndarray, mask: np.ndarray, k: object, pred_len: int) 
     empty = np.flatnonzero(~mask.any(1))
     if empty.size:
         raise InputError(f"window {empty[0]}: agent_mask marks no agent; give every window at least one")
-    bad = mask[:, :, None] & ~(np.isfinite(past) & (np.abs(past) <= MAX_ABS_COORDINATE_M)).all(-1)
+    bad = mask[:, :, None] & _off_limits(past)
     if bad.any():
         b, a, t = (int(i) for i in np.argwhere(bad)[0])
         raise InputError(
@@ -158,10 +158,15 @@ def check_request(past: np.ndarray, mask: np.ndarray, k: object, pred_len: int) 
         )
 
 
+def _off_limits(xy: np.ndarray) -> np.ndarray:
+    """(..., 2) -> (...): points that are not finite coordinates within ±MAX_ABS_COORDINATE_M."""
+    return ~(np.isfinite(xy) & (np.abs(xy) <= MAX_ABS_COORDINATE_M)).all(-1)
+
+
 def check_goals(goals: np.ndarray, mask: np.ndarray) -> None:
     """Goals of real agents must be finite coordinates within the same bounds as positions."""
     real = mask if goals.ndim == 3 else mask[:, :, None]
-    bad = real & ~(np.isfinite(goals) & (np.abs(goals) <= MAX_ABS_COORDINATE_M)).all(-1)
+    bad = real & _off_limits(goals)
     if bad.any():
         where = ", ".join(str(int(i)) for i in np.argwhere(bad)[0])
         raise InputError(f"goals[{where}]: not a finite coordinate within ±{MAX_ABS_COORDINATE_M:g} m")

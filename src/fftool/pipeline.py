@@ -18,9 +18,10 @@ stage. Stages never import each other.
 
 from __future__ import annotations
 
+import contextlib
 import tempfile
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -219,29 +220,8 @@ def _build(
     started = time.perf_counter()
     store.check_inputs(inputs)
     checked_s = time.perf_counter() - started
-    try:
-        return _build_checked(cfg, store, item, inputs, runtime, started, checked_s)
-    except OSError as exc:  # a full disk, a read-only root: say which stage and file, not the errno alone
-        if isinstance(exc, FftoolError):
-            raise
-        where = exc.filename or store.root
-        raise FftoolError(
-            f"stage {stage.name!r} ({item.description}): {where}: {exc.strerror or exc}; no partial artifact was kept"
-        ) from exc
-
-
-def _build_checked(
-    cfg: PipelineConfig,
-    store: ArtifactStore,
-    item: Resolved,
-    inputs: Mapping[str, Artifact],
-    runtime: Runtime,
-    started: float,
-    checked_s: float,
-) -> Artifact:
-    """`_build` once its inputs passed their check: the atomic build itself."""
-    stage, fp = item.stage, item.fingerprint
     with (
+        _naming_os_errors(item, store.root),
         store.build(
             stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs, sources=item.sources
         ) as built_ctx,
@@ -267,6 +247,20 @@ def _build_checked(
         distributed.barrier()  # the other ranks read the installed artifact
     log(f"stage {stage.name!r}: wrote {built_ctx.artifact.path}")
     return built_ctx.artifact
+
+
+@contextlib.contextmanager
+def _naming_os_errors(item: Resolved, root: Path) -> Iterator[None]:
+    """A build's OSError (a full disk, a read-only root) as one error naming the stage and the file."""
+    try:
+        yield
+    except OSError as exc:
+        if isinstance(exc, FftoolError):
+            raise
+        raise FftoolError(
+            f"stage {item.stage.name!r} ({item.description}): {exc.filename or root}: {exc.strerror or exc}; "
+            "no partial artifact was kept"
+        ) from exc
 
 
 def _announce(stage: Stage, runtime: Runtime, scratch: Path | None) -> None:

@@ -15,11 +15,15 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import PipelineConfig, load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError, UsageError
 from fftool.paper import VARIANTS, reads_goal
+
+if TYPE_CHECKING:
+    from fftool.pipeline import Resolved
 
 ENV_MODELS = "FFTOOL_MODELS"
 KINDS = ("goal", "cvae", "dlow")  # what a profile's run trains, upstream first
@@ -74,13 +78,15 @@ class Shipped:
 
     def expected_fingerprint(self, cfg: PipelineConfig | None = None) -> str:
         """The fingerprint today's code computes for this stage, benchmark and variant under the profile."""
-        from fftool import pipeline
+        return planned(cfg or self.profile_config(), self.kind, self.variant, self.benchmark).fingerprint
 
-        cfg = cfg or self.profile_config()
-        if self.variant is not None:
-            cfg = predictor_config(cfg, self.variant)
-        resolved = pipeline.resolve(cfg, [self.kind], self.benchmark)
-        return next(item.fingerprint for item in resolved if item.stage.name == self.kind)
+
+def planned(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> Resolved:
+    """The build `reproduce` plans for one trained stage (of a variant's CVAE, for cvae and dlow)."""
+    from fftool import pipeline
+
+    chosen = cfg if variant is None else predictor_config(cfg, variant)
+    return next(item for item in pipeline.resolve(chosen, [kind], benchmark) if item.stage.name == kind)
 
 
 def profile_config(profile: str) -> PipelineConfig:
@@ -146,6 +152,7 @@ class Bundle:
     cvae: Artifact
     dlow: Artifact | None
     goal: Artifact | None
+    store: ArtifactStore  # the profile's shipped models
 
 
 def find(name: str, root: Path | None = None) -> Bundle:
@@ -172,6 +179,7 @@ def find(name: str, root: Path | None = None) -> Bundle:
         cvae,
         dlow.artifact if dlow and dlow.artifact.manifest.sources.get("cvae") == cvae.fingerprint else None,
         goal.artifact if goal else None,
+        zoo,
     )
 
 
@@ -202,17 +210,10 @@ def install(target: ArtifactStore, models: Iterable[Shipped], root: Path | None 
 def trained_by(cfg: PipelineConfig, benchmark: str) -> list[tuple[str, str | None, str]]:
     """(kind, variant, fingerprint) of every model the profile trains for a benchmark: the goal U-Net, the
     CVAEs of the baseline and report.variants, the DLow samplers of dlow.variants."""
-    from fftool import pipeline
-
     variants = ["baseline", *(v for v in cfg.report.variants if v != "baseline")]
     wanted: list[tuple[str, str | None]] = [("goal", None), *(("cvae", v) for v in variants)]
     wanted += [("dlow", v) for v in variants if v in cfg.dlow.variants]
-    found = []
-    for kind, variant in wanted:
-        chosen = cfg if variant is None else predictor_config(cfg, variant)
-        resolved = pipeline.resolve(chosen, [kind], benchmark)
-        found.append((kind, variant, next(item.fingerprint for item in resolved if item.stage.name == kind)))
-    return found
+    return [(kind, variant, planned(cfg, kind, variant, benchmark).fingerprint) for kind, variant in wanted]
 
 
 def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
@@ -253,14 +254,11 @@ def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | No
     `rekeyed_from` is added to its stats; the names re-keyed."""
     from dataclasses import replace
 
-    from fftool import pipeline
-
     cfg = profile_config(profile)
     zoo = store(profile, root)
     moved = []
     for model in shipped(profile, benchmarks, root):
-        chosen = cfg if model.variant is None else predictor_config(cfg, model.variant)
-        item = next(r for r in pipeline.resolve(chosen, [model.kind], model.benchmark) if r.stage.name == model.kind)
+        item = planned(cfg, model.kind, model.variant, model.benchmark)
         manifest = model.artifact.manifest
         if item.fingerprint == manifest.fingerprint:
             continue
