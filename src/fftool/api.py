@@ -23,7 +23,8 @@ from fftool import zoo
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import EvaluateConfig, GoalConfig, GoalsConfig
 from fftool.dataset.scenes import PRED_LEN
-from fftool.dataset.steps import observed_windows, prediction_steps, to_steps
+from fftool.dataset.steps import ObservedWindows, grid_steps, observed_windows, prediction_steps, to_steps
+from fftool.dataset.stream import DetectionBuffer
 from fftool.errors import FftoolError, InputError, UsageError
 from fftool.learning import devices, goal_model
 from fftool.learning.batches import SceneMaps
@@ -245,11 +246,27 @@ def predict_tracks(
         raise InputError(f"prediction times {at}: expected finite seconds")
     steps = to_steps(source, tracks, model.step_s, max_gap_s)
     found = observed_windows(source, steps, model.obs_len, prediction_steps(steps, at))
+    labels = steps.labels[found.agent]
+    goal, pred = draw_futures(model, found, labels, k=k, seed=seed, goals=goals, goal_sampler=goal_sampler)
+    return _table(steps.time_of(found.t0_step[found.window]), labels, goal, pred), steps.warnings
+
+
+def draw_futures(
+    model: Model,
+    found: ObservedWindows,
+    labels: np.ndarray,
+    *,
+    k: int,
+    seed: int,
+    goals: Mapping[object, tuple[float, float]] | None,
+    goal_sampler: GoalSampler | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The goals (M, K, 2) and futures (M, K, pred_len, 2) of the observed agent-windows `found`, whose agent
+    ids are `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`."""
     check_k(k, len(found.xy), model.pred_len)
     scenes = scene_set(
         found.xy, found.window, found.agent, model.pred_len, model.trained.forces_config, model.trained.dt_s
     )
-    labels = steps.labels[found.agent]
     predictor = model.predictor(k, seed)
     goals_of = predictor.goals
     if reads_goal(model.variant):
@@ -273,8 +290,7 @@ def predict_tracks(
         sample_batches(predictor, scenes, plan, goals_of, model.device),
         lambda batch, goals_k, futures: {"goal": goals_k.transpose(1, 2), "pred": futures.transpose(1, 2)},
     )
-    goal, pred = columns["goal"], columns["pred"]  # (m, K, 2), (m, K, T, 2)
-    return _table(steps.time_of(found.t0_step[found.window]), labels, goal, pred), steps.warnings
+    return columns["goal"], columns["pred"]
 
 
 def _table(t0_s: np.ndarray, labels: np.ndarray, goal: np.ndarray, pred: np.ndarray) -> pd.DataFrame:
@@ -293,3 +309,137 @@ def _table(t0_s: np.ndarray, labels: np.ndarray, goal: np.ndarray, pred: np.ndar
             "goal_y": np.repeat(goal[..., 1].reshape(-1), T),
         }
     )
+
+
+@dataclass(frozen=True)
+class OnlineFutures:
+    """What one `OnlinePredictor.update` returns: K futures of every agent with a full observed history."""
+
+    time_s: float
+    agents: np.ndarray  # (M,) ids as the detections gave them, sorted
+    futures: np.ndarray  # (M, K, pred_len, 2) metres
+    goals: np.ndarray  # (M, K, 2) the goal each future steered toward (the last position for goal-free variants)
+
+    def table(self) -> pd.DataFrame:
+        """The long format of `predict_tracks`: one row per (agent, sample, step)."""
+        return _table(np.full(len(self.agents), self.time_s), self.agents, self.goals, self.futures)
+
+
+class OnlinePredictor:
+    """A trained model in a control loop: feed detections as they come, get K futures per agent in view.
+
+        online = OnlinePredictor("cpu/zara1/dr", k=20)     # a Model, an artifact id, folder or shipped name
+        for time_s, detections in tracker:                 # {agent id: (x, y) metres}, at the sensor's rate
+            result = online.update(time_s, detections)     # result.futures: (M, K, 12, 2) for result.agents
+
+    Each update predicts at its own time for every agent detected then with positions at all obs_len grid
+    points of the model's step before it (interpolated from the detections, bridging gaps up to max_gap_s):
+    the numbers `predict_tracks(..., at=[time_s])` gives for the detections so far, with the same seed.
+    Memory is bounded (dataset/stream.py); a bad update is refused with an InputError and changes nothing.
+    """
+
+    def __init__(
+        self,
+        model: Model | str | Path,
+        *,
+        k: int = 20,
+        seed: int = 0,
+        goal_sampler: GoalSampler | str | Path | None = None,
+        max_gap_s: float = 1.0,
+        root: Path | None = None,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        """goal_sampler: a goal U-Net (or its reference) drawing K goals per agent for goal variants; a shipped
+        goal variant brings its own. Without one, goal variants take `goals` in each update."""
+        if not isinstance(model, Model):
+            shipped = zoo.is_name(model)
+            name, model = model, load(model, root=root, device=device)
+            if goal_sampler is None and shipped and reads_goal(model.variant):
+                goal_sampler = name  # as `fftool predict --model cpu/zara1/dr`: its benchmark's goal U-Net
+        if isinstance(goal_sampler, (str, Path)):
+            goal_sampler = load_goal_sampler(goal_sampler, root=root, device=model.device)
+        check_k(k, 1, model.pred_len)
+        if not max_gap_s >= 0:
+            raise UsageError(f"max_gap_s = {max_gap_s}: expected seconds, at least 0")
+        self.model, self.k, self.seed, self.goal_sampler = model, k, seed, goal_sampler
+        self.max_gap_s = float(max_gap_s)
+        self.buffer = DetectionBuffer((model.obs_len - 1) * model.step_s + self.max_gap_s, self.max_gap_s)
+        self.id_kind: type | None = None  # str or int, fixed by the first detection
+
+    def update(
+        self,
+        time_s: float,
+        detections: Mapping[object, tuple[float, float]],
+        goals: Mapping[object, tuple[float, float]] | None = None,
+    ) -> OnlineFutures:
+        """Take the detections at `time_s` (seconds, later than the last update) and predict from them.
+
+        goals: for goal variants without a goal sampler, one (x, y) per agent detected now."""
+        agents, xy = self._checked(time_s, detections)
+        if goals is not None:
+            _positions(goals, [a for a in agents if a in goals], "goal of agent", time_s)
+        self.buffer.add(float(time_s), agents, xy)
+        self.id_kind = self.id_kind or (_id_kind(agents[0]) if len(agents) else None)
+        k, pred_len = self.k, self.model.pred_len
+        result = OnlineFutures(float(time_s), agents[:0], np.zeros((0, k, pred_len, 2)), np.zeros((0, k, 2)))
+        if len(agents):
+            buffer = self.buffer
+            steps = grid_steps(_STREAM, buffer.time, buffer.agent, buffer.xy, self.model.step_s, self.max_gap_s)
+            found = observed_windows(_STREAM, steps, self.model.obs_len, np.zeros(1, np.int64), require=False)
+            if len(found.xy):
+                labels = steps.labels[found.agent]
+                goal, pred = draw_futures(
+                    self.model, found, labels, k=k, seed=self.seed, goals=goals, goal_sampler=self.goal_sampler
+                )
+                result = OnlineFutures(float(time_s), labels, pred, goal)
+        return result
+
+    def _checked(self, time_s: object, detections: object) -> tuple[np.ndarray, np.ndarray]:
+        """(M,) agent ids and (M, 2) positions of an update, or an InputError before any state changes."""
+        if isinstance(time_s, bool) or not isinstance(time_s, (int, float, np.integer, np.floating)):
+            raise InputError(f"time {time_s!r}: expected a number of seconds")
+        if not np.isfinite(time_s):
+            raise InputError(f"time {time_s}: expected a finite number of seconds")
+        last = self.buffer.last_time_s
+        if last is not None and not time_s > last:
+            raise InputError(f"time {time_s:.6g} s: not after the last update's {last:.6g} s; times must increase")
+        if not isinstance(detections, Mapping):
+            raise InputError(f"detections: expected a mapping of agent id to (x, y), got {type(detections).__name__}")
+        agents = np.array(list(detections), dtype=object)
+        kind = self.id_kind or (_id_kind(agents[0]) if len(agents) else None)
+        odd = [a for a in agents if _id_kind(a) is not kind or kind is None]
+        if odd:
+            raise InputError(
+                f"agent id {odd[0]!r}: expected ids of one kind for the whole stream, all whole numbers or all "
+                f"strings{f' (this stream has {kind.__name__} ids)' if kind else ''}"
+            )
+        return agents, _positions(detections, agents, "agent", time_s)
+
+
+_STREAM = Path("<stream>")
+
+
+def _id_kind(agent: object) -> type | None:
+    """int or str: the agent ids a stream may use (sortable, as the windows order agents by id)."""
+    if isinstance(agent, str):
+        return str
+    return int if isinstance(agent, (int, np.integer)) and not isinstance(agent, bool) else None
+
+
+def _positions(of: Mapping[object, object], agents: object, what: str, time_s: object) -> np.ndarray:
+    """(M, 2) finite coordinates within bounds of `agents` in `of`, or an InputError naming the first bad one."""
+    rows = []
+    for agent in agents:
+        point = np.asarray(of[agent], dtype=object)
+        if point.shape != (2,) or not all(isinstance(v, (int, float, np.integer, np.floating)) for v in point):
+            raise InputError(f"{what} {agent!r} at {time_s} s: {of[agent]!r} is not an (x, y) pair of numbers")
+        rows.append(point.astype(np.float64))
+    xy = np.array(rows, dtype=np.float64).reshape(-1, 2)
+    off = np.flatnonzero(_off_limits(xy))
+    if off.size:
+        agent = list(agents)[off[0]]
+        raise InputError(
+            f"{what} {agent!r} at {time_s} s: {xy[off[0]].tolist()} is not a finite coordinate within "
+            f"±{MAX_ABS_COORDINATE_M:g} m"
+        )
+    return xy

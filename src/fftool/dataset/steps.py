@@ -42,8 +42,15 @@ class StepTracks:
 
 def to_steps(path: Path, tracks: pd.DataFrame, step_s: float, max_gap_s: float) -> StepTracks:
     """Tracks (time_s, agent, x, y; sorted by agent, time) on the grid of `step_s` seconds ending at the last time."""
-    labels, agent = np.unique(tracks["agent"].to_numpy(), return_inverse=True)
-    time = tracks["time_s"].to_numpy()
+    xy = tracks[["x", "y"]].to_numpy()
+    return grid_steps(path, tracks["time_s"].to_numpy(), tracks["agent"].to_numpy(), xy, step_s, max_gap_s)
+
+
+def grid_steps(
+    path: Path, time: np.ndarray, agent_ids: np.ndarray, xy: np.ndarray, step_s: float, max_gap_s: float
+) -> StepTracks:
+    """`to_steps` of rows given as arrays: times (N,) s, agent ids (N,), positions (N, 2) m, sorted by agent, time."""
+    labels, agent = np.unique(agent_ids, return_inverse=True)
     last = float(time.max())
     same = agent[1:] == agent[:-1]
     gaps = np.flatnonzero(same & (np.diff(time) > max_gap_s + 1e-9))
@@ -72,7 +79,6 @@ def to_steps(path: Path, tracks: pd.DataFrame, step_s: float, max_gap_s: float) 
     left = np.where(exact, right, right - 1)
     width = np.where(exact, 1.0, rel[right] - rel[left])
     weight = np.where(exact, 0.0, (grid_step - rel[left]) / width)[:, None]
-    xy = tracks[["x", "y"]].to_numpy()
     grid_xy = np.where(exact[:, None], xy[right], xy[left] + weight * (xy[right] - xy[left]))
     warnings = []
     native = float(np.median(np.diff(time)[same])) if same.any() else step_s
@@ -116,11 +122,15 @@ def prediction_steps(tracks: StepTracks, at: str | list[float]) -> np.ndarray | 
     return np.round(rel).astype(np.int64)
 
 
-def observed_windows(path: Path, tracks: StepTracks, obs_len: int, steps: np.ndarray | None) -> ObservedWindows:
-    """Every agent present at all `obs_len` steps up to each prediction step (None: every step that has one)."""
+def observed_windows(
+    path: Path, tracks: StepTracks, obs_len: int, steps: np.ndarray | None, require: bool = True
+) -> ObservedWindows:
+    """Every agent present at all `obs_len` steps up to each prediction step (None: every step that has one).
+
+    None found is an error naming the times, unless `require` is False (a stream: nobody in view yet)."""
     found = slice_sequence(tracks.step, tracks.agent, tracks.step, tracks.xy, obs_len, obs_len)
     keep_window = np.ones(found.t0_step.size, bool) if steps is None else np.isin(found.t0_step, steps)
-    if not keep_window.any():
+    if require and not keep_window.any():
         times = ", ".join(f"{t:.6g} s" for t in tracks.time_of(steps)[:5]) if steps is not None else "any time"
         raise RawDataError(
             path,

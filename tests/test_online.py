@@ -1,0 +1,185 @@
+"""The online predictor: the numbers of `fftool predict --at t` on the same tracks, a stream at any rate with
+jitter and dropped frames, bounded memory, and bad updates refused with the state unharmed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from fftool import pipeline
+from fftool.api import OnlinePredictor, load, predict_tracks
+from fftool.artifacts.store import ArtifactStore
+from fftool.cli import app
+from fftool.config import load_config, predictor_config
+from fftool.dataset.stream import DetectionBuffer
+from fftool.errors import InputError
+
+from .conftest import REAL_RAW, make_raw_tree
+from .test_predict import TINY
+
+ZARA1 = REAL_RAW / "all_data" / "crowds_zara01.txt"
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """A tiny baseline and dr CVAE (trained on synthetic walkers: the weights need not be good, only fixed)."""
+    base = tmp_path_factory.mktemp("online")
+    cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(base / 'raw'))!r}", *TINY])
+    store = ArtifactStore(base / "artifacts")
+    ids = {
+        v: pipeline.run(predictor_config(cfg, v), store, ["cvae"], benchmark="zara1")["cvae"].id
+        for v in ("baseline", "dr")
+    }
+    return {"root": base / "artifacts", **ids}
+
+
+def _zara1(first_s: float, last_s: float) -> pd.DataFrame:
+    """Real zara1 rows (time_s, agent, x, y) between two times: 2.5 Hz, frames 0.04 s apart."""
+    if not ZARA1.is_file():
+        pytest.skip(f"real data absent: {ZARA1}")
+    rows = np.loadtxt(ZARA1)
+    table = pd.DataFrame({"time_s": rows[:, 0] * 0.04, "agent": rows[:, 1].astype(np.int64)})
+    table[["x", "y"]] = rows[:, 2:4]
+    table = table[table["time_s"].between(first_s, last_s)]
+    return table.sort_values(["agent", "time_s"], kind="stable").reset_index(drop=True)
+
+
+def _replay(online: OnlinePredictor, tracks: pd.DataFrame, goals: dict | None = None) -> dict[float, pd.DataFrame]:
+    """Each distinct time of `tracks` fed as one update; the futures table of every update that predicted."""
+    results = {}
+    for time_s, rows in tracks.groupby("time_s", sort=True):
+        detections = dict(zip(rows["agent"], zip(rows["x"], rows["y"])))
+        now = {a: goals[a] for a in detections} if goals else None
+        result = online.update(float(time_s), detections, goals=now)
+        if len(result.agents):
+            results[float(time_s)] = result.table()
+    return results
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("variant", ["baseline", "dr"])
+def test_the_online_predictor_gives_the_numbers_of_predict_at_each_time(
+    tiny: dict[str, object], variant: str, tmp_path: Path
+) -> None:
+    tracks = _zara1(40.0, 60.0)
+    goals = None
+    if variant == "dr":  # a goal for every agent: its last position in the recording
+        last = tracks.groupby("agent")[["x", "y"]].last()
+        goals = {a: (float(x), float(y)) for a, (x, y) in last.iterrows()}
+        pd.DataFrame({"agent": last.index, "x": last["x"], "y": last["y"]}).to_csv(tmp_path / "goals.csv", index=False)
+    online = OnlinePredictor(tiny[variant], root=tiny["root"], k=20, seed=4)
+    results = _replay(online, tracks, goals)
+    assert len(results) > 30
+    tracks.rename(columns={"time_s": "time"}).to_csv(tmp_path / "tracks.csv", index=False)
+    for time_s in list(results)[:: len(results) // 3][:3]:  # three times, each in a command of its own
+        out = tmp_path / f"at_{time_s:.2f}.parquet"
+        args = ["predict", str(tmp_path / "tracks.csv"), "--model", tiny[variant], "--root", str(tiny["root"])]
+        args += ["--at", f"{time_s:.2f}", "--seed", "4", "--out", str(out)]
+        args += ["--goals", str(tmp_path / "goals.csv")] if goals else []
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+        expected = pd.read_parquet(out).sort_values(["agent", "sample", "step"], kind="stable")
+        got = results[time_s]
+        assert got["agent"].tolist() == expected["agent"].tolist()
+        assert np.array_equal(got[["x", "y"]].to_numpy(), expected[["x", "y"]].to_numpy())  # equal, not close
+
+
+@pytest.mark.data
+def test_a_jittered_stream_with_dropped_frames_gives_predicts_numbers_on_what_it_saw(tiny: dict[str, object]) -> None:
+    """10 Hz detections with ±20 ms jitter, one in ten dropped: each prediction equals `predict_tracks` on all the
+    detections received so far (resampled the same way), although the predictor keeps only the last few seconds."""
+    tracks = _zara1(40.0, 56.0)
+    rng = np.random.default_rng(0)
+    times = np.arange(41.0, 55.0, 0.1) + rng.uniform(-0.02, 0.02, 140)
+    model = load(tiny["baseline"], root=tiny["root"])
+    online = OnlinePredictor(model, k=6, seed=1)
+    seen, compared = [], 0
+    for i, time_s in enumerate(times):
+        detections = {}
+        for agent, rows in tracks.groupby("agent"):
+            t = rows["time_s"].to_numpy()
+            if t[0] <= time_s <= t[-1] and rng.random() > 0.1:
+                detections[agent] = (np.interp(time_s, t, rows["x"]), np.interp(time_s, t, rows["y"]))
+        result = online.update(time_s, detections)
+        seen += [(time_s, a, x, y) for a, (x, y) in detections.items()]
+        assert set(result.agents) <= set(detections)
+        if i % 10 == 9 and len(result.agents):
+            table = pd.DataFrame(seen, columns=["time_s", "agent", "x", "y"]).sort_values(["agent", "time_s"])
+            expected, _ = predict_tracks(model, table, at="last", k=6, seed=1)
+            assert np.array_equal(result.table()[["x", "y"]].to_numpy(), expected[["x", "y"]].to_numpy())
+            compared += 1
+    assert compared >= 8
+    assert len(online.buffer.time) < len(seen) / 3  # it kept a few seconds, not the stream
+
+
+def test_an_agent_back_after_a_long_gap_starts_a_new_track(tiny: dict[str, object]) -> None:
+    online = OnlinePredictor(tiny["baseline"], root=tiny["root"], k=2, max_gap_s=1.0)
+    walk = lambda t: (0.5 * t, 1.0)  # noqa: E731
+    predicted_at = []
+    for step in range(30):
+        t = 0.4 * step
+        if 10 <= step < 13:  # 1.2 s without agent 7: longer than max_gap_s
+            result = online.update(t, {8: (0.0, 0.3 * t)})
+        else:
+            result = online.update(t, {7: walk(t), 8: (0.0, 0.3 * t)})
+        predicted_at.append(7 in result.agents)
+    assert predicted_at[7:10] == [True] * 3  # eight steps seen: predicted
+    assert not any(predicted_at[10:20])  # after the gap: its old steps are gone, eight new ones are needed
+    assert all(predicted_at[20:])
+
+
+def test_memory_stays_bounded_over_a_long_stream() -> None:
+    """10,000 updates of a crowd that keeps changing: the buffer holds one horizon of the agents in view."""
+    buffer = DetectionBuffer(horizon_s=3.8, max_gap_s=1.0)
+    rng = np.random.default_rng(0)
+    largest = 0
+    for step in range(10_000):
+        t = 0.1 * step + rng.uniform(-0.02, 0.02)
+        in_view = np.arange(step // 50, step // 50 + 20)  # 20 agents, one replaced every 5 s
+        seen = in_view[rng.random(20) > 0.2]
+        buffer.add(t, seen.astype(object), rng.normal(size=(len(seen), 2)))
+        largest = max(largest, len(buffer.time))
+    assert largest <= 20 * (3.8 / 0.1 + 2)
+    assert set(buffer.agents) <= set(range(step // 50 - 1, step // 50 + 20))  # gone agents are forgotten
+
+
+@pytest.mark.parametrize(
+    ("time_s", "detections", "message"),
+    [
+        (float("nan"), {1: (0.0, 0.0)}, "finite number of seconds"),
+        (float("inf"), {1: (0.0, 0.0)}, "finite number of seconds"),
+        ("soon", {1: (0.0, 0.0)}, "number of seconds"),
+        (1.0, {1: (0.0, 0.0)}, "not after the last update's 1.2 s"),
+        (1.2, {1: (0.0, 0.0)}, "not after the last update's 1.2 s"),
+        (1.6, {1: (float("nan"), 0.0)}, "agent 1 at 1.6 s: [nan, 0.0] is not a finite coordinate"),
+        (1.6, {1: (0.0, 1e9)}, "not a finite coordinate within"),
+        (1.6, {1: (0.0,)}, "agent 1 at 1.6 s: (0.0,) is not an (x, y) pair of numbers"),
+        (1.6, {1: ("a", 2.0)}, "is not an (x, y) pair of numbers"),
+        (1.6, {"ped": (0.0, 0.0)}, "agent id 'ped': expected ids of one kind for the whole stream"),
+        (1.6, {True: (0.0, 0.0)}, "agent id True"),
+        (1.6, [(0.0, 0.0)], "expected a mapping of agent id to (x, y)"),
+    ],
+)
+def test_a_bad_update_is_one_clear_error_and_changes_nothing(
+    tiny: dict[str, object], time_s: object, detections: object, message: str
+) -> None:
+    model = load(tiny["baseline"], root=tiny["root"])
+    online, untouched = OnlinePredictor(model, k=3), OnlinePredictor(model, k=3)
+    for t in np.arange(4) * 0.4:
+        for predictor in (online, untouched):
+            predictor.update(float(t), {1: (t, 0.0), 2: (0.0, t)})
+    state = lambda: (online.buffer.time.copy(), online.buffer.agent.copy(), online.buffer.xy.copy())  # noqa: E731
+    before = state()
+    with pytest.raises(InputError) as error:
+        online.update(time_s, detections)
+    assert message in str(error.value) and "\n" not in str(error.value)
+    assert all(
+        np.array_equal(a, b) for a, b in zip(before, (online.buffer.time, online.buffer.agent, online.buffer.xy))
+    )
+    for t in np.arange(4, 10) * 0.4:  # and it goes on as if the bad update had never come
+        got, expected = (p.update(float(t), {1: (t, 0.0), 2: (0.0, t)}) for p in (online, untouched))
+    assert np.array_equal(got.futures, expected.futures) and len(got.agents) == 2
