@@ -96,6 +96,25 @@ def test_agent_aware_attention_gradients_match_the_definition(t_query: int, t_ke
         torch.testing.assert_close(ours, reference)
 
 
+def test_stacked_projections_follow_the_weights_without_autograd() -> None:
+    """Sampling keeps the stacked projection weights between steps: a changed weight (an optimiser step, a
+    loaded checkpoint, a move to another device) must be read at the next call, with and without autograd."""
+    torch.manual_seed(0)
+    attn = AgentAwareAttention(16, 2, 0.0).eval()
+    query, key = torch.randn(2, 6, 16), torch.randn(2, 9, 16)
+    every_pair = torch.ones(2, 6, 9, dtype=torch.bool)
+    with torch.no_grad():
+        before = attn(query, key, 3, None)
+        attn.q.weight.mul_(2.0)
+        attn.k_self.bias.add_(0.5)
+        after = attn(query, key, 3, None)
+        torch.testing.assert_close(after, _reference_attention(attn, query, key, 3, every_pair))
+        assert not torch.allclose(before, after)
+        attn.load_state_dict(AgentAwareAttention(16, 2, 0.0).state_dict())
+        torch.testing.assert_close(attn(query, key, 3, None), _reference_attention(attn, query, key, 3, every_pair))
+    torch.testing.assert_close(attn(query, key, 3, None), _reference_attention(attn, query, key, 3, every_pair))
+
+
 def test_cpu_dropout_drops_p_keeps_the_mean_and_repeats_with_the_seed() -> None:
     dropout = Dropout(0.1).train()
     x = torch.ones(400_000, requires_grad=True)

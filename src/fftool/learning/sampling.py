@@ -112,7 +112,7 @@ def collect(batches: Iterable[tuple[SceneBatch, torch.Tensor, torch.Tensor]], fi
     return {name: values[order] for name, values in columns.items()}
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def sample_batches(
     predictor: Predictor, scenes: SceneSet, plan: list[np.ndarray], goals_of: GoalsOf, device: torch.device
 ) -> Iterator[tuple[SceneBatch, torch.Tensor, torch.Tensor]]:

@@ -70,7 +70,9 @@ class Dropout(nn.Dropout):
     """
 
     def forward(self, x: Tensor) -> Tensor:
-        if not self.training or self.p == 0 or x.device.type != "cpu":
+        if not self.training or self.p == 0:
+            return x  # as nn.Dropout returns it, without the call (a sampling step makes dozens)
+        if x.device.type != "cpu":
             return super().forward(x)
         dropped = round(self.p * 65536)
         n = x.numel()
@@ -95,6 +97,7 @@ class AgentAwareAttention(nn.Module):
         self.q_self, self.k_self = nn.Linear(d_model, d_model), nn.Linear(d_model, d_model)
         self.out = nn.Linear(d_model, d_model)
         self.dropout = Dropout(dropout)
+        self._stacked: dict[tuple, tuple] = {}  # _fused: per layer set, the parameter versions and their stacks
         for layer in (self.q, self.k, self.v, self.q_self, self.k_self):
             nn.init.xavier_uniform_(layer.weight)
             nn.init.zeros_(layer.bias)
@@ -106,9 +109,20 @@ class AgentAwareAttention(nn.Module):
 
     def _project(self, x: Tensor, layers: tuple[nn.Linear, ...]) -> list[Tensor]:
         """Several projections of x as one matrix product (much faster than one small product each)."""
-        weight = torch.cat([layer.weight for layer in layers])
-        bias = torch.cat([layer.bias for layer in layers])
+        weight, bias = self._fused(layers)
         return [self._heads(part) for part in F.linear(x, weight, bias).chunk(len(layers), -1)]
+
+    def _fused(self, layers: tuple[nn.Linear, ...]) -> tuple[Tensor, Tensor]:
+        """The layers' weights and biases stacked; without autograd kept until a parameter changes (sampling
+        projects the same layers at every decoding step), with it stacked afresh so gradients flow."""
+        parameters = [p for layer in layers for p in (layer.weight, layer.bias)]
+        if torch.is_grad_enabled():
+            return torch.cat(parameters[::2]), torch.cat(parameters[1::2])
+        which, versions = tuple(map(id, layers)), tuple((p.data_ptr(), p._version) for p in parameters)
+        kept = self._stacked.get(which)
+        if kept is None or kept[0] != versions:
+            kept = self._stacked[which] = (versions, torch.cat(parameters[::2]), torch.cat(parameters[1::2]))
+        return kept[1], kept[2]
 
     def keys(self, key: Tensor) -> Keys:
         """Project key tokens (B, Lk, D) once; decoders cache these instead of re-projecting every step."""
