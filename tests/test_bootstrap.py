@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fftool.science.bootstrap import (
+    binned_mean_intervals,
     percentile_interval,
     replicate_means,
     replicate_sums,
@@ -93,3 +94,19 @@ def test_blocks_widen_the_interval_of_a_time_correlated_metric() -> None:
         low, high = percentile_interval(means)
         widths[block] = high - low
     assert widths[20] / widths[1] > 3  # about sqrt(20) ≈ 4.5: the effective sample is 50, not 1,000
+
+
+def test_binned_mean_intervals_equal_a_loop_over_resamples() -> None:
+    rng = np.random.default_rng(3)
+    window = np.sort(rng.integers(0, 30, 200))
+    values = rng.normal(size=200)
+    bins = rng.integers(-1, 3, 30)  # -1: a window in no bin
+    draws = window_draws(30, 300, 1, block=5)
+    low, high = binned_mean_intervals(draws, values, window, bins, 3, 0.9)
+    for b in range(3):
+        means = []
+        for counts in draws:
+            weight = counts[window] * (bins[window] == b)
+            if weight.sum():
+                means.append((weight * values).sum() / weight.sum())
+        np.testing.assert_allclose([low[b], high[b]], np.quantile(means, [0.05, 0.95]))

@@ -10,6 +10,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from matplotlib.colors import to_hex, to_rgb
+from matplotlib.container import ErrorbarContainer
 
 from fftool.config import MapsConfig
 from fftool.learning.batches import AgentWindows
@@ -133,6 +134,12 @@ def test_the_qualitative_key_and_title_match_the_predictors(tmp_path: Path) -> N
         drawn = {to_hex(line.get_color()) for ax in axes[:, col] for line in ax.get_lines()}
         assert drawn - {"#000000", "#ffffff"} == {plots.COLOURS[e.predictor]}
         assert axes[0, col].get_title() == e.name
+    for row in axes:  # one window's panels share one extent, so its predictors compare at one scale
+        assert len({(ax.get_xlim(), ax.get_ylim()) for ax in row}) == 1
+        (x0, x1), (y0, y1) = row[0].get_xlim(), row[0].get_ylim()
+        points = np.concatenate([line.get_xydata() for ax in row for line in ax.get_lines()])
+        assert (points[:, 0] > x0).all() and (points[:, 0] < x1).all() and (points[:, 1] > y0).all()
+        assert (points[:, 1] < y1).all()
     title = fig._suptitle.get_text().replace("\n", " ")
     assert title.startswith("zara1 (test part)") and f"K = {K} samples" in title
     assert "goal protocol 'paper'" in title and "constant velocity, AgentFormer read no goal" in title
@@ -196,3 +203,31 @@ def test_the_maps_check_figure_has_a_key_entry_per_channel(tmp_path: Path) -> No
     assert np.allclose(to_rgb(mean.get_facecolor()), (200 / 255,) * 3, atol=0.01)
     _check_figure("zara1", raster, images, transform, tmp_path / "check.png")
     assert (tmp_path / "check.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def _error_bars(fig: plt.Figure) -> tuple[np.ndarray, np.ndarray]:
+    """The minFDE curve's points (n, 2) and their error bars' end points (n, 2, 2)."""
+    container = next(c for c in fig.axes[0].containers if isinstance(c, ErrorbarContainer))
+    data_line, _, (bars,) = container.lines
+    return data_line.get_xydata(), np.array(bars.get_segments())
+
+
+def test_the_density_curves_carry_block_bootstrap_intervals_that_hold_their_means() -> None:
+    """Each bin's point has an error bar around it; constant values give none; a slowly varying error over time
+    (overlapping windows) gives wider bars with blocks of 20 windows than with windows drawn one by one."""
+    data = recordings({"crowds_zara01": 200}, agents=3)
+    drift = 1 + 0.5 * np.sin(np.arange(200) / 15)  # neighbouring windows alike, as stride-1 windows are
+    frames = {"dr": evaluation(data, "dr", drift).frame}
+    widths = {}
+    for block in (1, 20):
+        fig = plots.density_figure({"zara1": frames}, resampling=plots.Resampling(500, 0, block, 0.95))
+        points, bars = _error_bars(fig)
+        assert len(points) == len(bars) >= 1
+        assert ((bars[:, 0, 1] <= points[:, 1]) & (points[:, 1] <= bars[:, 1, 1])).all()
+        widths[block] = float((bars[:, 1, 1] - bars[:, 0, 1]).mean())
+        plt.close(fig)
+    assert widths[20] > 1.5 * widths[1] > 0
+    fig = plots.density_figure({"zara1": {"dr": evaluation(data, "dr", np.ones(200)).frame}})
+    _, bars = _error_bars(fig)
+    np.testing.assert_allclose(bars[:, 0, 1], bars[:, 1, 1])  # every window alike: nothing to be unsure of
+    plt.close(fig)

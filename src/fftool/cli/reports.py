@@ -229,6 +229,7 @@ def plot(
             window_ids=[int(w) for w in windows.split(",")] if windows else None,
             count=count,
             best_only=best,
+            resampling=plots.resampling_of(cfg.report, cfg.windows),
         )
         log(f"wrote {', '.join(map(str, written))}")
 

@@ -142,9 +142,11 @@ def figures(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, A
     for r in results:
         evaluations.setdefault(r["benchmark"], []).append(plots.Evaluation.of(store.resolve(r["artifact"])))
     windows = store.resolve(windows_ids.pop())
+    resampling = plots.resampling_of(cfg.report, cfg.windows)
     return plots.figures(
-        evaluations, windows, cfg.evaluate.part, Path(cfg.data.scenes_dir), out_dir, density_only=("cv",)
-    )
+        evaluations, windows, cfg.evaluate.part, Path(cfg.data.scenes_dir), out_dir, density_only=("cv",),
+        resampling=resampling,
+    )  # fmt: skip
 
 
 def caption(cfg: PipelineConfig, profile: str) -> str:

@@ -23,11 +23,13 @@ import pandas as pd
 from fftool import __version__
 from fftool.artifacts.schema import PREDICTIONS_FILE
 from fftool.artifacts.store import Artifact
+from fftool.config import ReportConfig, WindowsConfig
 from fftool.dataset.scene_images import SceneImage, project, read_scene
 from fftool.dataset.scenes import SOURCE_SCENE
 from fftool.errors import FftoolError, UsageError
 from fftool.learning.batches import AgentWindows, load_agent_windows
 from fftool.paper import PAPER_NAMES
+from fftool.science.bootstrap import Resampling, binned_mean_intervals, window_draws, windows_of
 
 SOFTWARE = f"fftool {__version__}"  # PNG metadata: marks a figure fftool may overwrite
 COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff7f0e", "re": "#d62728"}
@@ -151,6 +153,7 @@ def figures(
     window_ids: Sequence[int] | None = None,
     count: int = 3,
     best_only: bool = False,
+    resampling: Resampling = Resampling(),
 ) -> list[Path]:
     """The density curves of every benchmark in one figure, then a qualitative figure per benchmark.
 
@@ -182,7 +185,7 @@ def figures(
     frames = {benchmark: {e.predictor: e.frame for e in predictors} for benchmark, predictors in evaluations.items()}
     every = [e for predictors in evaluations.values() for e in predictors]
     title = f"{', '.join(evaluations)} ({part} part): {setting(every)}"
-    written = [density_curves(frames, density, title=title)]
+    written = [density_curves(frames, density, title=title, resampling=resampling)]
     for drawn, data, chosen, how, out in panels:
         written.append(qualitative(drawn, data, chosen, scenes_dir, obs_len, best_only, out, how=how))
     return written
@@ -289,14 +292,11 @@ def qualitative_figure(
         name = SOURCE_SCENE.get(source)
         scene = read_scene(scenes_dir / name) if name else None
         xy = project(scene, data.xy[members])  # (A, L, 2)
-        for col, evaluation in enumerate(evaluations):
+        drawn = [project(scene, _drawn_futures(e, data.row[members], best_only)) for e in evaluations]
+        extent = _extent([xy, *drawn], scene is not None)  # one per window: its panels compare at one scale
+        for col, (evaluation, futures) in enumerate(zip(evaluations, drawn)):
             ax = axes[row, col]
-            futures = evaluation.futures(data.row[members])  # (A, K, T, 2)
-            best = evaluation.by_row.loc[data.row[members], "best_k"].to_numpy()
-            if best_only:
-                futures = futures[np.arange(len(members)), best][:, None]
-            futures = project(scene, futures)
-            _draw_window(ax, scene, xy, futures, obs_len, evaluation.colour)
+            _draw_window(ax, scene, xy, futures, obs_len, evaluation.colour, extent)
             ade = float(evaluation.by_row.loc[data.row[members], "min_ade"].mean())
             ax.text(
                 0.02, 0.98, f"minADE {ade:.2f} m", transform=ax.transAxes, va="top", fontsize=8,
@@ -346,10 +346,34 @@ def legend_handles(evaluations: Sequence[Evaluation], best_only: bool) -> list[p
     return handles
 
 
-def _draw_window(ax, scene: SceneImage | None, xy: np.ndarray, futures: np.ndarray, obs_len: int, colour: str) -> None:
-    everything = np.concatenate([xy.reshape(-1, 2), futures.reshape(-1, 2)])
+def _drawn_futures(evaluation: Evaluation, rows: np.ndarray, best_only: bool) -> np.ndarray:
+    """(A, K, T, 2) futures of the agent-window rows, or (A, 1, T, 2) each agent's best-ADE sample."""
+    futures = evaluation.futures(rows)
+    if best_only:
+        best = evaluation.by_row.loc[rows, "best_k"].to_numpy()
+        futures = futures[np.arange(len(rows)), best][:, None]
+    return futures
+
+
+def _extent(paths: Sequence[np.ndarray], pixels: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The (low, high) corners that hold every point of `paths` with a margin (pixels or metres)."""
+    everything = np.concatenate([p.reshape(-1, 2) for p in paths])
     low, high = everything.min(0), everything.max(0)
-    pad = 0.15 * max(high - low) + (20 if scene is not None else 0.5)
+    pad = 0.15 * max(high - low) + (20 if pixels else 0.5)
+    return low - pad, high + pad
+
+
+def _draw_window(
+    ax,
+    scene: SceneImage | None,
+    xy: np.ndarray,
+    futures: np.ndarray,
+    obs_len: int,
+    colour: str,
+    extent: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """Observed paths (black), ground truth (dashed) and the futures in `colour`, within `extent`."""
+    low, high = extent
     if scene is not None:
         ax.imshow(scene.image, alpha=0.8)
     for agent in range(len(xy)):
@@ -359,28 +383,40 @@ def _draw_window(ax, scene: SceneImage | None, xy: np.ndarray, futures: np.ndarr
         ax.plot(xy[agent, :obs_len, 0], xy[agent, :obs_len, 1], color="black", lw=2)
         ax.plot(xy[agent, obs_len - 1 :, 0], xy[agent, obs_len - 1 :, 1], color="white", lw=1.5, ls="--")
         ax.plot(xy[agent, obs_len - 1 :, 0], xy[agent, obs_len - 1 :, 1], color="black", lw=0.6, ls="--")
-    ax.set_xlim(low[0] - pad, high[0] + pad)
+    ax.set_xlim(low[0], high[0])
     if scene is not None:
-        ax.set_ylim(high[1] + pad, low[1] - pad)  # image rows grow downward
+        ax.set_ylim(high[1], low[1])  # image rows grow downward
     else:
-        ax.set_ylim(low[1] - pad, high[1] + pad)
+        ax.set_ylim(low[1], high[1])
         ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
 
 
-def density_curves(results: Mapping[str, Mapping[str, pd.DataFrame]], out: Path, *, title: str | None = None) -> Path:
+def density_curves(
+    results: Mapping[str, Mapping[str, pd.DataFrame]],
+    out: Path,
+    *,
+    title: str | None = None,
+    resampling: Resampling = Resampling(),
+) -> Path:
     """Per scene: minFDE and collisions per window against the number of agents in the window.
 
     results[benchmark][predictor] = predictions frame. Agent counts are binned so every bin holds data;
     grey bars (right axis) give how many agent-windows / windows each bin holds. `title`: the figure's
-    title, e.g. the benchmarks, K and the goal protocol (`setting`).
+    title, e.g. the benchmarks, K and the goal protocol (`setting`). Error bars: `density_figure`.
     """
-    return save_figure(density_figure(results, title=title), out, dpi=100)
+    return save_figure(density_figure(results, title=title, resampling=resampling), out, dpi=100)
 
 
-def density_figure(results: Mapping[str, Mapping[str, pd.DataFrame]], *, title: str | None = None) -> plt.Figure:
-    """The figure `density_curves` saves."""
+def density_figure(
+    results: Mapping[str, Mapping[str, pd.DataFrame]],
+    *,
+    title: str | None = None,
+    resampling: Resampling = Resampling(),
+) -> plt.Figure:
+    """The figure `density_curves` saves: each bin's mean with its percentile interval under `resampling`, the
+    moving-block bootstrap over test windows the tables use (a bin holds few windows: the bars say how sure)."""
     benchmarks = list(results)
     fig, axes = plt.subplots(
         2, len(benchmarks), figsize=(4.6 * max(len(benchmarks), 1.5), 7.4), squeeze=False, layout="constrained"
@@ -391,13 +427,29 @@ def density_figure(results: Mapping[str, Mapping[str, pd.DataFrame]], *, title: 
             continue
         reference = next(iter(frames.values()))  # every predictor of a benchmark has the same windows
         edges = np.unique(np.r_[0, np.quantile(reference["n_agents"], np.linspace(0, 1, 7)).round()])
+        ids, _ = windows_of(reference["window_id"].to_numpy())
+        draws = window_draws(len(ids), resampling.resamples, [resampling.seed, col], resampling.block)
         for predictor, frame in frames.items():
-            agents = frame.groupby(pd.cut(frame["n_agents"], edges), observed=True)
+            own, window = windows_of(frame["window_id"].to_numpy())
+            if not np.array_equal(own, ids):
+                raise FftoolError(f"{benchmark}: the {predictor} predictions cover other test windows")
             windows = frame.groupby("window_id").agg(n=("n_agents", "first"), nc=("collisions", "sum"))
-            per_window = windows.groupby(pd.cut(windows["n"], edges), observed=True)
+            bins = pd.cut(windows["n"], edges).cat.codes.to_numpy()  # (W,) each window's bin, ids in sorted order
             style = {"color": COLOURS.get(predictor), "marker": "o", "label": PAPER_NAMES.get(predictor, predictor)}
-            axes[0, col].plot(agents["n_agents"].mean(), agents["min_fde"].mean(), **style)
-            axes[1, col].plot(per_window["n"].mean(), per_window["nc"].mean(), **style)
+            style |= {"capsize": 2, "lw": 1.2, "elinewidth": 0.8}
+            every_window = np.arange(len(ids))
+            for ax, values, of in (
+                (axes[0, col], frame["min_fde"], window),
+                (axes[1, col], windows["nc"], every_window),
+            ):
+                values = values.to_numpy(np.float64)
+                count = np.bincount(bins[of], minlength=len(edges) - 1)
+                mean = np.bincount(bins[of], weights=values, minlength=len(edges) - 1) / np.maximum(count, 1)
+                x = np.bincount(bins[of], weights=windows["n"].to_numpy()[of], minlength=len(edges) - 1)
+                low, high = binned_mean_intervals(draws, values, of, bins, len(edges) - 1, resampling.level)
+                held = count > 0
+                error = np.vstack([mean - low, high - mean])[:, held]
+                ax.errorbar(x[held] / count[held], mean[held], yerr=np.clip(error, 0, None), **style)
         windows = reference.groupby("window_id")["n_agents"].first()
         _bin_counts(axes[0, col], reference["n_agents"], edges, "agent-windows per bin")
         _bin_counts(axes[1, col], windows, edges, "windows per bin")
@@ -409,7 +461,13 @@ def density_figure(results: Mapping[str, Mapping[str, pd.DataFrame]], *, title: 
     handles.append(
         plt.Rectangle((0, 0), 1, 1, color="0.6", alpha=0.35, label="grey bars: bin span and count (right axis)")
     )
-    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 3), frameon=False, fontsize=9)
+    level, block = f"{resampling.level:.0%}", resampling.block
+    handles.append(
+        plt.Line2D([], [], color="0.3", marker="|", ls="none", label=f"error bars: {level} interval of the mean "
+        f"(block bootstrap, {block} windows per block)")
+    )  # fmt: skip
+    ncol = min(len(handles), max(2, int(fig.get_size_inches()[0] / 3.5)))
+    fig.legend(handles=handles, loc="outside lower center", ncol=ncol, frameon=False, fontsize=9)
     heading = "minFDE and collisions against crowd density"
     fig.suptitle(f"{heading}\n" + "\n".join(_wrap(title, 10 * fig.get_size_inches()[0])) if title else heading)
     return fig
@@ -427,3 +485,10 @@ def _bin_counts(ax, values: pd.Series, edges: np.ndarray, label: str) -> None:
     twin.tick_params(axis="y", colors="0.4", labelsize=8)
     ax.set_zorder(twin.get_zorder() + 1)  # curves over the bars
     ax.patch.set_visible(False)
+
+
+def resampling_of(report: ReportConfig, windows: WindowsConfig) -> Resampling:
+    """The resampling of a report's tables, for its figures' intervals."""
+    return Resampling(
+        report.bootstrap_resamples, report.bootstrap_seed, report.block_length(windows), report.confidence
+    )

@@ -19,8 +19,19 @@ Intervals are percentile intervals (Efron's), which need no normality and keep c
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class Resampling:
+    """How a report resamples its test windows: resamples, seed, windows per block, interval level."""
+
+    resamples: int = 2000
+    seed: int = 0
+    block: int = 1
+    level: float = 0.95
 
 
 def window_draws(n_windows: int, resamples: int, seed: int | Sequence[int], block: int = 1) -> np.ndarray:
@@ -70,3 +81,24 @@ def windows_of(window_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct window ids (W,) in sorted order and each agent-window's index into them (N,)."""
     ids, index = np.unique(window_ids, return_inverse=True)
     return ids, index
+
+
+def binned_mean_intervals(
+    draws: np.ndarray, values: np.ndarray, window: np.ndarray, bins: np.ndarray, n_bins: int, level: float = 0.95
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n_bins,) low and high ends of each bin's mean of `values` (N,) over the resamples `draws` (R, W).
+
+    window (N,): each value's window index; bins (W,): each window's bin, -1 for none. A resample's bin mean is a
+    ratio of sums over the windows it drew, as `replicate_means`; a bin a resample did not draw is left out.
+    """
+    W = draws.shape[1]
+    member = np.zeros((W, n_bins))
+    member[np.flatnonzero(bins >= 0), bins[bins >= 0]] = 1.0
+    sums = window_sums(values, window, W)[:, None] * member
+    counts = window_sums(np.ones(len(values)), window, W)[:, None] * member
+    with np.errstate(invalid="ignore", divide="ignore"):
+        replicates = (draws @ sums) / (draws @ counts)  # (R, n_bins)
+    low, high = np.full(n_bins, np.nan), np.full(n_bins, np.nan)
+    held = ~np.isnan(replicates).all(0)  # a bin no window falls in has no interval
+    low[held], high[held] = np.nanquantile(replicates[:, held], [(1 - level) / 2, (1 + level) / 2], axis=0)
+    return low, high
