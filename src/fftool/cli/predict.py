@@ -28,7 +28,8 @@ def _times(value: str) -> str | list[float]:
     "  fftool predict tracks.csv --model cpu/zara1/dr --out futures.parquet   # shipped: fftool models list\n\n"
     "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --out futures.parquet --plot futures.png\n\n"
     "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --at all --out all.parquet"
-    "   # every time with 8 observed steps"
+    "   # every time with 8 observed steps\n\n"
+    "  fftool predict tracks.csv --model cpu/zara1/dr --at all --animate scene.gif"
 )
 @boundary
 def predict(
@@ -85,6 +86,16 @@ def predict(
         float, typer.Option("--max-gap", min=0, help="Longest gap (s) in a track that may be interpolated over.")
     ] = 1.0,
     plot: Annotated[Path | None, typer.Option("--plot", help="Also draw past and predicted paths to this PNG.")] = None,
+    animate: Annotated[
+        Path | None,
+        typer.Option(
+            "--animate",
+            dir_okay=False,
+            help="Also animate the prediction times (with --at all: one frame each) to this .gif, or .mp4 where "
+            "imageio-ffmpeg is installed.",
+        ),
+    ] = None,
+    fps: Annotated[float, typer.Option("--fps", min=0.5, max=60, help="With --animate: frames per second.")] = 5.0,
     scene_image: Annotated[
         Path | None, typer.Option("--scene-image", help="With --plot: the image to draw on.")
     ] = None,
@@ -109,6 +120,12 @@ def predict(
     if (scene_image is None) != (homography is None):
         raise UsageError("--scene-image and --homography go together: the image and its world->pixel matrix")
     check_out(out)
+    if animate is not None:
+        from fftool.reporting.animation import check_out as check_animation
+
+        check_animation(animate)
+        if when == "last":
+            raise UsageError("--animate draws one frame per prediction time: give --at all or several times")
     chosen = load(model, root=root, device="cpu" if device == "auto" else device, dlow=dlow)
     columns = Columns(time_col, agent_col, x_col, y_col)
     observed = read_tracks(tracks, columns, units, time_step, frame_step_s=chosen.step_s)
@@ -137,7 +154,7 @@ def predict(
     write_predictions(table, out, about)
     agents = table.groupby("time_s")["agent"].nunique()
     log(f"wrote {out}: {k} samples for {int(agents.sum())} agent(s) at {len(agents)} time(s)")
-    if plot is not None:
+    if plot is not None or animate is not None:
         from fftool.dataset.scene_images import SceneImage, read_homography, read_image
 
         scene = None
@@ -146,4 +163,14 @@ def predict(
 
             image = cv2.cvtColor(read_image(scene_image, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
             scene = SceneImage(image, read_homography(homography))
-        log(f"wrote {prediction_figure(observed, table, scene, plot)}")
+        if plot is not None:
+            log(f"wrote {prediction_figure(observed, table, scene, plot)}")
+        if animate is not None:
+            from fftool.config import EvaluateConfig
+            from fftool.paper import PAPER_NAMES
+            from fftool.reporting.animation import prediction_movie, render, write
+
+            name = f"{PAPER_NAMES.get(chosen.variant, chosen.variant)} ({model})"
+            gamma = EvaluateConfig().collision_threshold_m
+            movie = prediction_movie(observed, table, scene, name, chosen.obs_len, chosen.step_s, gamma)
+            log(f"wrote {write(render(movie), animate, fps)}")

@@ -174,7 +174,8 @@ app.command(
 
 @app.command(
     epilog="Examples:\n\n  fftool plot --benchmarks zara1 --variants baseline,dr,re -c pipelines/quick.toml\n\n"
-    "  fftool plot --benchmarks zara1 --windows 12,25 --best --out figures/ -c pipelines/quick.toml"
+    "  fftool plot --benchmarks zara1 --windows 12,25 --best --out figures/ -c pipelines/quick.toml\n\n"
+    "  fftool plot --benchmarks zara1 --variants baseline,dr --animate gif --frames 40 -c pipelines/quick.toml"
 )
 @boundary
 def plot(
@@ -193,6 +194,16 @@ def plot(
     ] = None,
     count: Annotated[int, typer.Option("--count", min=1, help="Windows to pick when --windows is not given.")] = 3,
     best: Annotated[bool, typer.Option("--best", help="Draw each agent's best-ADE sample only, not all K.")] = False,
+    animate: Annotated[
+        str | None,
+        typer.Option(
+            "--animate",
+            help="Also animate a stretch of the test recording (around the first of --windows, else the first "
+            "picked): gif, or mp4 where imageio-ffmpeg is installed; written as animation_<benchmark>.<format>.",
+        ),
+    ] = None,
+    frames: Annotated[int, typer.Option("--frames", min=2, help="With --animate: windows (frames) to show.")] = 50,
+    fps: Annotated[float, typer.Option("--fps", min=0.5, max=60, help="With --animate: frames per second.")] = 5.0,
     protocol: ProtocolOption = None,
     device: DeviceOption = "auto",
     config: ConfigOption = None,
@@ -209,6 +220,11 @@ def plot(
     from fftool.reporting import plots
     from fftool.ui import log
 
+    if animate is not None:
+        from fftool.reporting.animation import check_out as check_animation
+
+        for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+            check_animation(out / f"animation_{benchmark}.{animate}")
     predictors = [check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
     cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
     names = chosen_benchmarks(benchmarks, old_benchmark)
@@ -232,6 +248,19 @@ def plot(
             resampling=plots.resampling_of(cfg.report, cfg.windows),
         )
         log(f"wrote {', '.join(map(str, written))}")
+        if animate is not None:
+            from fftool.reporting.animation import animate_test
+
+            drawn = [plots.Evaluation.of(b["evaluate"]) for b, p in zip(built, predictors) if p != "cv"] or [
+                plots.Evaluation.of(built[0]["evaluate"])
+            ]
+            movie = animate_test(
+                drawn, built[0]["windows"], cfg.evaluate.part, Path(cfg.data.scenes_dir),
+                out / f"animation_{benchmark}.{animate}", dt_s=cfg.ingest.dt_s,
+                threshold_m=cfg.evaluate.collision_threshold_m, start=int(windows.split(",")[0]) if windows else None,
+                frames=frames, fps=fps, best_only=best,
+            )  # fmt: skip
+            log(f"wrote {movie}")
 
 
 @app.command(epilog="Example: fftool rescore evaluate/3f9c2a --threshold 0.2   # ids: fftool artifacts list")

@@ -135,7 +135,7 @@ def setting(evaluations: Sequence[Evaluation]) -> str:
     return text
 
 
-def _title(evaluations: Sequence[Evaluation], what: str) -> str:
+def title_of(evaluations: Sequence[Evaluation], what: str) -> str:
     """`what`, headed by the benchmark and part of the evaluations where they are known."""
     where = [f"{e.benchmark}" + (f" ({e.part} part)" if e.part else "") for e in evaluations[:1] if e.benchmark]
     return f"{where[0]}: {what}" if where else what
@@ -293,27 +293,27 @@ def qualitative_figure(
         scene = read_scene(scenes_dir / name) if name else None
         xy = project(scene, data.xy[members])  # (A, L, 2)
         drawn = [project(scene, _drawn_futures(e, data.row[members], best_only)) for e in evaluations]
-        extent = _extent([xy, *drawn], scene is not None)  # one per window: its panels compare at one scale
+        extent = extent_of([xy, *drawn], scene is not None)  # one per window: its panels compare at one scale
         for col, (evaluation, futures) in enumerate(zip(evaluations, drawn)):
             ax = axes[row, col]
-            _draw_window(ax, scene, xy, futures, obs_len, evaluation.colour, extent)
+            draw_window(ax, scene, xy, futures, obs_len, evaluation.colour, extent)
             ade = float(evaluation.by_row.loc[data.row[members], "min_ade"].mean())
             ax.text(
                 0.02, 0.98, f"minADE {ade:.2f} m", transform=ax.transAxes, va="top", fontsize=8,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5},
             )  # fmt: skip
             if row == 0:
-                ax.set_title(evaluation.name, color=evaluation.colour, fontweight="bold")
+                ax.settitle_of(evaluation.name, color=evaluation.colour, fontweight="bold")
             if col == 0:
                 first = int(data.first_step[members[0]])
                 ax.set_ylabel(f"window {window}\n{source}, step {first}\n{len(members)} agents", fontsize=9)
     handles = legend_handles(evaluations, best_only)
     ncol = max(2, min(len(handles), int(width / 3.3)))
-    _header_and_key(fig, _title(evaluations, setting(evaluations)), how, handles, ncol)
+    header_and_key(fig, title_of(evaluations, setting(evaluations)), how, handles, ncol)
     return fig
 
 
-def _header_and_key(fig: plt.Figure, title: str, caption: str | None, handles: list, ncol: int) -> None:
+def header_and_key(fig: plt.Figure, title: str, caption: str | None, handles: list, ncol: int) -> None:
     """Title (and an italic caption under it) on top, the key at the bottom, the axes laid out between."""
     width, height = fig.get_size_inches()
     lines = _wrap(title, 9 * width)
@@ -355,7 +355,7 @@ def _drawn_futures(evaluation: Evaluation, rows: np.ndarray, best_only: bool) ->
     return futures
 
 
-def _extent(paths: Sequence[np.ndarray], pixels: bool) -> tuple[np.ndarray, np.ndarray]:
+def extent_of(paths: Sequence[np.ndarray], pixels: bool) -> tuple[np.ndarray, np.ndarray]:
     """The (low, high) corners that hold every point of `paths` with a margin (pixels or metres)."""
     everything = np.concatenate([p.reshape(-1, 2) for p in paths])
     low, high = everything.min(0), everything.max(0)
@@ -363,7 +363,7 @@ def _extent(paths: Sequence[np.ndarray], pixels: bool) -> tuple[np.ndarray, np.n
     return low - pad, high + pad
 
 
-def _draw_window(
+def draw_window(
     ax,
     scene: SceneImage | None,
     xy: np.ndarray,
@@ -453,7 +453,7 @@ def density_figure(
         windows = reference.groupby("window_id")["n_agents"].first()
         _bin_counts(axes[0, col], reference["n_agents"], edges, "agent-windows per bin")
         _bin_counts(axes[1, col], windows, edges, "windows per bin")
-        axes[0, col].set_title(benchmark)
+        axes[0, col].settitle_of(benchmark)
         axes[0, col].set_ylabel("minFDE@K (m), mean over agents")
         axes[1, col].set_ylabel("collisions per window\n(ordered pair-steps, mean)")
         axes[1, col].set_xlabel("valid agents in the window (bins)")
