@@ -303,7 +303,7 @@ def qualitative_figure(
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5},
             )  # fmt: skip
             if row == 0:
-                ax.settitle_of(evaluation.name, color=evaluation.colour, fontweight="bold")
+                ax.set_title(evaluation.name, color=evaluation.colour, fontweight="bold")
             if col == 0:
                 first = int(data.first_step[members[0]])
                 ax.set_ylabel(f"window {window}\n{source}, step {first}\n{len(members)} agents", fontsize=9)
@@ -453,7 +453,7 @@ def density_figure(
         windows = reference.groupby("window_id")["n_agents"].first()
         _bin_counts(axes[0, col], reference["n_agents"], edges, "agent-windows per bin")
         _bin_counts(axes[1, col], windows, edges, "windows per bin")
-        axes[0, col].settitle_of(benchmark)
+        axes[0, col].set_title(benchmark)
         axes[0, col].set_ylabel("minFDE@K (m), mean over agents")
         axes[1, col].set_ylabel("collisions per window\n(ordered pair-steps, mean)")
         axes[1, col].set_xlabel("valid agents in the window (bins)")
