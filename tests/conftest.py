@@ -1,4 +1,5 @@
-"""Shared fixtures: a tiny synthetic raw tree (all 8 sources × all/train/val) and a store on tmp_path."""
+"""Shared fixtures: a tiny synthetic raw tree (all 8 sources × all/train/val), a store on tmp_path, and tiny
+trained CVAEs built once per test run."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from filelock import FileLock
 
 from fftool.artifacts.store import ArtifactStore
 from fftool.dataset.scenes import SOURCES, raw_relpath
@@ -74,3 +76,33 @@ def snapshot(root: Path) -> dict[str, bytes]:
         return {}
     files = (p for p in sorted(root.rglob("*")) if p.is_file() and ".locks" not in p.relative_to(root).parts)
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in files}
+
+
+# A CVAE that trains in seconds on the synthetic walkers: its weights need not be good, only fixed.
+TINY_CVAE = [
+    "cvae.d_model=16", "cvae.n_heads=2", "cvae.d_ff=32", "cvae.n_layers=1", "cvae.z_dim=4", "cvae.epochs=1",
+    "cvae.train_k=2", "cvae.max_train_windows=64", "cvae.val_max_windows=4", "cvae.output='cv_residual'",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def tiny_cvaes(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> dict[str, object]:
+    """{"root": a store, "baseline": id, "dr": id}: tiny zara1 CVAEs, trained once for the whole run (pytest-xdist
+    workers share them through a lock). Tests read them; a test that changes a file copies the folder first."""
+    from fftool import pipeline
+    from fftool.config import load_config, predictor_config
+
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if worker_id != "master" else base) / "tiny-cvaes"
+    with FileLock(f"{shared}.lock"):
+        done = shared / "ids.txt"
+        if not done.is_file():
+            cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(shared / 'raw'))!r}", *TINY_CVAE])
+            store = ArtifactStore(shared / "artifacts")
+            built = {
+                v: pipeline.run(predictor_config(cfg, v), store, ["cvae"], benchmark="zara1")
+                for v in ("baseline", "dr")
+            }
+            done.write_text("\n".join(f"{v} {b['cvae'].id}" for v, b in built.items()))
+    ids = dict(line.split() for line in done.read_text().splitlines())
+    return {"root": shared / "artifacts", **ids}

@@ -17,7 +17,6 @@ from fftool.reporting import animation
 
 from .test_plots import OBS, recordings
 from .test_plots import evaluation as synthetic_evaluation
-from .test_predict import tiny_model  # noqa: F401  (the module-scoped fixture)
 
 
 def test_contacts_are_the_midpoints_of_pairs_closer_than_gamma() -> None:
@@ -72,8 +71,8 @@ def test_mp4_goes_through_ffmpeg_with_fftools_mark(tmp_path: Path) -> None:
     animation.write(images, out, fps=5)
 
 
-def test_predict_animates_a_users_tracks(tiny_model: tuple[Path, str], tmp_path: Path) -> None:  # noqa: F811
-    root, model_id = tiny_model
+def test_predict_animates_a_users_tracks(tiny_cvaes: dict[str, object], tmp_path: Path) -> None:
+    root, model_id = tiny_cvaes["root"], tiny_cvaes["baseline"]
     step = np.arange(16)
     rows = {"time": np.r_[step, step] * 0.4, "agent_id": np.repeat([1, 2], 16)}
     rows |= {"x": np.r_[step * 0.5, 8 - step * 0.5], "y": np.r_[step * 0.0, 0.2 + step * 0.0]}

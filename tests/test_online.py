@@ -10,31 +10,20 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from fftool import pipeline
 from fftool.api import OnlinePredictor, load, predict_tracks
-from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
-from fftool.config import load_config, predictor_config
 from fftool.dataset.stream import DetectionBuffer
 from fftool.errors import InputError
 
-from .conftest import REAL_RAW, make_raw_tree
-from .test_predict import TINY
+from .conftest import REAL_RAW
 
 ZARA1 = REAL_RAW / "all_data" / "crowds_zara01.txt"
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
-    """A tiny baseline and dr CVAE (trained on synthetic walkers: the weights need not be good, only fixed)."""
-    base = tmp_path_factory.mktemp("online")
-    cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(base / 'raw'))!r}", *TINY])
-    store = ArtifactStore(base / "artifacts")
-    ids = {
-        v: pipeline.run(predictor_config(cfg, v), store, ["cvae"], benchmark="zara1")["cvae"].id
-        for v in ("baseline", "dr")
-    }
-    return {"root": base / "artifacts", **ids}
+@pytest.fixture
+def tiny(tiny_cvaes: dict[str, object]) -> dict[str, object]:
+    """The shared tiny baseline and dr CVAEs (conftest.tiny_cvaes)."""
+    return tiny_cvaes
 
 
 def _zara1(first_s: float, last_s: float) -> pd.DataFrame:

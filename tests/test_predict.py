@@ -20,16 +20,11 @@ from fftool.dataset.trackfiles import read_tracks
 from fftool.errors import RawDataError
 from fftool.learning.batches import load_agent_windows
 
-from .conftest import REAL_RAW
-
-TINY = [
-    "cvae.d_model=16", "cvae.n_heads=2", "cvae.d_ff=32", "cvae.n_layers=1", "cvae.z_dim=4", "cvae.epochs=1",
-    "cvae.train_k=2", "cvae.max_train_windows=64", "cvae.val_max_windows=4", "cvae.output='cv_residual'",
-]  # fmt: skip
+from .conftest import REAL_RAW, TINY_CVAE
 
 
 def _train(raw: Path, root: Path, variant: str, protocol: str = "paper") -> dict:
-    cfg = load_config(None, [f"data.raw_dir={str(raw)!r}", *TINY, f"evaluate.protocol={protocol!r}"])
+    cfg = load_config(None, [f"data.raw_dir={str(raw)!r}", *TINY_CVAE, f"evaluate.protocol={protocol!r}"])
     return pipeline.run(predictor_config(cfg, variant), ArtifactStore(root), ["evaluate"], benchmark="zara1")
 
 
@@ -82,15 +77,10 @@ def test_predict_on_real_zara1_gives_evaluates_numbers(tmp_path: Path) -> None:
     assert np.array_equal(_predicted(out, len(expected)), expected)
 
 
-@pytest.fixture(scope="module")
-def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    from .conftest import make_raw_tree
-
-    base = tmp_path_factory.mktemp("tiny")
-    raw = make_raw_tree(base / "raw")
-    cfg = load_config(None, [f"data.raw_dir={str(raw)!r}", *TINY])
-    built = pipeline.run(cfg, ArtifactStore(base / "artifacts"), ["cvae"], benchmark="zara1")
-    return base / "artifacts", built["cvae"].id
+@pytest.fixture
+def tiny_model(tiny_cvaes: dict[str, object]) -> tuple[Path, str]:
+    """The shared tiny baseline CVAE (conftest.tiny_cvaes): its store and id."""
+    return tiny_cvaes["root"], tiny_cvaes["baseline"]
 
 
 def _walkers(path: Path, n_steps: int = 10, **columns: object) -> Path:
