@@ -45,6 +45,38 @@ def model_of(profile: str, variant: str) -> object:
     return Model(Trained(net, cfg, ForcesConfig(), STEP_S), 8, 12, torch.device("cpu"))
 
 
+def matmul_gflops(tokens: int = 200, d_model: int = 64, repeats: int = 2000) -> float:
+    """The rate (GFLOP/s) one thread reaches on the decoder's typical product: `tokens` rows (K = 20 samples of
+    10 agents) through a fused 5-way projection of width d_model, the upper bound the model's products approach."""
+    x, w = torch.randn(tokens, d_model), torch.randn(5 * d_model, d_model)
+    for _ in range(50):
+        torch.nn.functional.linear(x, w)
+    began = time.perf_counter()
+    for _ in range(repeats):
+        torch.nn.functional.linear(x, w)
+    return 2 * tokens * d_model * 5 * d_model * repeats / (time.perf_counter() - began) / 1e9
+
+
+def update_gflop(model: object, agents: int, k: int) -> float:
+    """Floating-point work of one predicting update (torch.utils.flop_counter: matrix products)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from fftool.api import OnlinePredictor
+
+    online = OnlinePredictor(model, k=k, seed=0)
+    start, velocity = walkers(agents)
+    goals = dict(enumerate(map(tuple, start + 20 * velocity)))
+    for frame in range(model.obs_len):
+        t = frame * STEP_S
+        detections = dict(enumerate(map(tuple, start + t * velocity)))
+        if frame == model.obs_len - 1:
+            with FlopCounterMode(display=False) as counter:
+                online.update(t, detections, goals=goals)
+            return counter.get_total_flops() / 1e9
+        online.update(t, detections, goals=goals)
+    raise AssertionError("unreachable")
+
+
 def latencies(model: object, agents: int, updates: int, k: int) -> np.ndarray:
     """Seconds per predicting update of a stream of `updates` frames."""
     from fftool.api import OnlinePredictor
@@ -99,7 +131,8 @@ def main() -> None:
     parser.add_argument("--agents", default="1,10,50")
     parser.add_argument("--profiles", default="quick,paper")
     parser.add_argument("--k", type=int, default=20)
-    parser.add_argument("--updates", type=int, default=300, help="predicting updates per stream")
+    parser.add_argument("--updates", type=int, default=300, help="predicting updates per stream (quick size)")
+    parser.add_argument("--paper-updates", type=int, default=60, help="predicting updates per stream (paper size)")
     parser.add_argument("--memory", type=int, default=0, help="instead: RSS over this many updates")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -107,17 +140,27 @@ def main() -> None:
     if args.memory:
         memory(args.memory, args.k)
         return
-    print(f"variant {args.variant}, {args.updates} predicting updates per stream")
-    print("| model | agents | median (ms) | 99th percentile (ms) | min (ms) |")
-    print("|---|---:|---:|---:|---:|")
+    print(f"variant {args.variant}, {args.updates} predicting updates per stream (paper size: --paper-updates)")
+    rates = {
+        profile: matmul_gflops(d_model=model_of(profile, "baseline").trained.config.d_model)
+        for profile in args.profiles.split(",")
+    }
+    print("one thread's matrix-product rate:", ", ".join(f"{p} {r:.1f} GFLOP/s" for p, r in rates.items()))
+    print(
+        "| model | agents | median (ms) | 99th percentile (ms) | min (ms) | GFLOP per update | floor at that rate (ms) "
+        "|"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for profile in args.profiles.split(","):
         model = model_of(profile, args.variant)
         for agents in (int(a) for a in args.agents.split(",")):
-            ms = latencies(model, agents, args.updates, args.k) * 1e3
+            updates = args.updates if profile == "quick" else args.paper_updates
+            ms = latencies(model, agents, updates, args.k) * 1e3
+            work = update_gflop(model, agents, args.k)
             cfg = model.trained.config
             label = f"{profile} (d_model {cfg.d_model}, {cfg.n_layers} layers)"
             row = f"| {label} | {agents} | {np.median(ms):.1f} | {np.percentile(ms, 99):.1f} | {ms.min():.1f} |"
-            print(row, flush=True)
+            print(f"{row} {work:.2f} | {work / rates[profile] * 1e3:.1f} |", flush=True)
 
 
 if __name__ == "__main__":
