@@ -202,7 +202,7 @@ def plot(
             "picked): gif, or mp4 where imageio-ffmpeg is installed; written as animation_<benchmark>.<format>.",
         ),
     ] = None,
-    frames: Annotated[int, typer.Option("--frames", min=2, help="With --animate: windows (frames) to show.")] = 50,
+    frames: Annotated[int, typer.Option("--frames", min=2, help="With --animate: windows (frames) to show.")] = 40,
     fps: Annotated[float, typer.Option("--fps", min=0.5, max=60, help="With --animate: frames per second.")] = 5.0,
     protocol: ProtocolOption = None,
     device: DeviceOption = "auto",

@@ -153,11 +153,14 @@ def prediction_movie(
 def render(movie: Movie, dpi: int = 72) -> list[np.ndarray]:
     """Every frame as an (H, W, 3) uint8 image: one figure, redrawn per frame."""
     panels = len(movie.names)
-    fig, axes = plt.subplots(1, panels, figsize=(3.6 * panels, 4.4) if panels > 1 else (6.0, 5.6), squeeze=False)
-    everything = [f.xy for f in movie.frames] + [p for f in movie.frames for p in f.futures]
-    everything += [trail for f in movie.frames for trail in f.trails if len(trail)]
+    size = (3.6 * panels, 4.4) if panels > 1 else (6.0, 5.6)
+    fig, axes = plt.subplots(1, panels, figsize=size, dpi=dpi, squeeze=False)
+    # The view holds every observed, true and trailed position of the stretch; futures may leave it (one wild
+    # sample would otherwise shrink the scene for every frame).
+    everything = [f.xy for f in movie.frames] + [trail for f in movie.frames for trail in f.trails if len(trail)]
     extent = plots.extent_of(everything, movie.scene is not None)
-    trail = plt.Line2D([], [], color="0.55", lw=1.2, label="trail")
+    trail_colour = "white" if movie.scene is not None else "0.55"  # seen on a photograph and on white alike
+    trail = plt.Line2D([], [], color="0.55", lw=1.5, label="trail (earlier steps)")
     ring = plt.Line2D([], [], color=COLLISION_COLOUR, marker="o", mfc="none", ls="none", label="collision (< γ)")
     key = [*movie.key, trail, ring]
     clock = fig.text(0.01, 0.99, "", fontsize=10, family="monospace", va="top")
@@ -167,11 +170,11 @@ def render(movie: Movie, dpi: int = 72) -> list[np.ndarray]:
             ax.clear()
             plots.draw_window(ax, movie.scene, frame.xy, futures, movie.obs_len, colour, extent)
             for trail in frame.trails:
-                ax.plot(trail[:, 0], trail[:, 1], color="0.55", lw=1.2, zorder=1)
+                ax.plot(trail[:, 0], trail[:, 1], color=trail_colour, lw=1.5, alpha=0.8)
             ax.plot(rings[:, 0], rings[:, 1], "o", mfc="none", mec=COLLISION_COLOUR, ms=9, mew=1.5)
             ax.set_title(name, color=colour, fontweight="bold", fontsize=10)
         if not images:
-            plots.header_and_key(fig, movie.title, None, key, max(2, min(len(key), panels * 2)))
+            plots.header_and_key(fig, movie.title, None, key, max(2, min(len(key), panels + 1)))
         clock.set_text(f"t = {frame.time_s:.1f} s")
         fig.canvas.draw()
         images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
@@ -204,8 +207,20 @@ def check_out(out: Path) -> str:
     return kind
 
 
+def _palette(first: np.ndarray) -> Image.Image:
+    """One palette for every frame: the first frame's 236 main colours and the drawn colours exactly (a
+    palette of the photograph alone turns a thin blue line green), so colours neither drift nor flicker."""
+    drawn = ["#000000", "#ffffff", "#8c8c8c", COLLISION_COLOUR, *plots.COLOURS.values()]
+    exact = [int(h[i : i + 2], 16) for h in (c.lstrip("#") for c in drawn) for i in (0, 2, 4)]
+    scene = Image.fromarray(first).quantize(colors=256 - len(drawn), method=Image.Quantize.MEDIANCUT)
+    palette = Image.new("P", (1, 1))
+    palette.putpalette(scene.getpalette()[: 3 * (256 - len(drawn))] + exact)
+    return palette
+
+
 def _write_gif(images: Sequence[np.ndarray], out: Path, fps: float) -> None:
-    frames = [Image.fromarray(image).quantize(colors=128, method=Image.Quantize.MEDIANCUT) for image in images]
+    palette = _palette(images[0])
+    frames = [Image.fromarray(image).quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
     frames[0].save(
         out, format="GIF", save_all=True, append_images=frames[1:], duration=round(1000 / fps), loop=0,
         comment=plots.SOFTWARE.encode(),
@@ -256,7 +271,7 @@ def animate_test(
     dt_s: float,
     threshold_m: float,
     start: int | None = None,
-    frames: int = 50,
+    frames: int = 40,
     fps: float = 5.0,
     dpi: int = 72,
     best_only: bool = False,

@@ -463,7 +463,7 @@ def density_figure(
     )
     level, block = f"{resampling.level:.0%}", resampling.block
     handles.append(
-        plt.Line2D([], [], color="0.3", marker="|", ls="none", label=f"error bars: {level} interval of the mean "
+        plt.Line2D([], [], color="0.3", marker="|", ls="none", label=f"error bars: {level} interval of the mean\n"
         f"(block bootstrap, {block} windows per block)")
     )  # fmt: skip
     ncol = min(len(handles), max(2, int(fig.get_size_inches()[0] / 3.5)))
