@@ -2,7 +2,8 @@
 
 Run: `python benchmarks/bench_fuzz.py [--examples 2000]`. The targets are the properties of
 tests/test_track_files.py (the track reader: the grid at other rates, units and names; arbitrary tables; the
-dataset TOML reader) and of tests/test_predict.py (the API's door); the suite runs each with 40 examples.
+dataset TOML reader), of tests/test_predict.py (the API's door) and of tests/test_online.py (the online
+predictor's updates); the suite runs each with 40 examples.
 Prints, per target, the inputs Hypothesis generated and tried, the failures it found, and the time, from
 pytest's `--hypothesis-show-statistics`.
 """
@@ -22,6 +23,7 @@ TARGETS = [
     "tests/test_track_files.py::test_any_generated_table_is_read_or_refused_in_one_line",
     "tests/test_track_files.py::test_any_generated_dataset_toml_is_read_or_refused_in_one_line",
     "tests/test_predict.py::test_generated_api_input_gives_finite_futures_or_one_clear_error",
+    "tests/test_online.py::test_generated_streams_give_finite_futures_or_one_clear_error_and_keep_the_state",
 ]
 
 

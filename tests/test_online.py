@@ -172,3 +172,44 @@ def test_a_bad_update_is_one_clear_error_and_changes_nothing(
     for t in np.arange(4, 10) * 0.4:  # and it goes on as if the bad update had never come
         got, expected = (p.update(float(t), {1: (t, 0.0), 2: (0.0, t)}) for p in (online, untouched))
     assert np.array_equal(got.futures, expected.futures) and len(got.agents) == 2
+
+
+def test_generated_streams_give_finite_futures_or_one_clear_error_and_keep_the_state(tiny: dict[str, object]) -> None:
+    """Hypothesis draws streams of updates: times (going back, repeated, NaN, inf included), ids of both kinds,
+    positions (NaN, inf, huge, wrong shapes included). Each update returns finite futures for agents it saw, or
+    raises InputError with the buffer unchanged; never a traceback, never NaN out of finite input."""
+    from hypothesis import HealthCheck, event, given, settings
+    from hypothesis import strategies as st
+
+    from tests.test_track_files import FUZZ_EXAMPLES
+
+    model = load(tiny["baseline"], root=tiny["root"])
+    number = st.one_of(st.floats(-20, 20), st.sampled_from([np.nan, np.inf, -np.inf, 1e30, 0.0]))
+    position = st.one_of(st.tuples(number, number), st.sampled_from([(0.0,), (1.0, 2.0, 3.0), ("a", 1.0), None]))
+    agent = st.one_of(st.integers(0, 5), st.sampled_from(["a", "b", True]))
+    step = st.one_of(st.floats(0.05, 0.6), st.sampled_from([0.0, -0.4, np.nan, np.inf]))
+    good = st.tuples(
+        st.floats(0.3, 0.5), st.fixed_dictionaries({a: st.tuples(*[st.floats(-20, 20)] * 2) for a in range(3)})
+    )
+    update = st.one_of(good, good, good, st.tuples(step, st.dictionaries(agent, position, max_size=4)))
+
+    @settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(st.lists(update, min_size=8, max_size=25))
+    def check(updates: list) -> None:
+        online, t = OnlinePredictor(model, k=3, seed=0), 0.0
+        for dt, detections in updates:
+            t = t + dt if np.isfinite(dt) else dt
+            before = (online.buffer.time.copy(), online.buffer.agent.copy(), online.buffer.xy.copy())
+            try:
+                result = online.update(t, detections)
+            except InputError as exc:
+                assert "\n" not in str(exc)
+                after = (online.buffer.time, online.buffer.agent, online.buffer.xy)
+                assert all(np.array_equal(a, b) for a, b in zip(before, after))
+                t = online.buffer.last_time_s if online.buffer.last_time_s is not None else 0.0
+                continue
+            assert set(result.agents) <= set(detections)
+            assert np.isfinite(result.futures).all() and result.futures.shape[1:] == (3, 12, 2)
+            event(f"predicted {min(len(result.agents), 1)}")
+
+    check()
