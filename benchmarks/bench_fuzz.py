@@ -35,8 +35,9 @@ def main() -> None:
     print("| target | examples asked | outcome | time (s) |\n|---|---:|---|---:|")
     for target in TARGETS:
         started = time.perf_counter()
+        pytest = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--timeout=0"]
         done = subprocess.run(
-            [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--timeout=0", "--hypothesis-show-statistics", target],
+            [*pytest, "--hypothesis-show-statistics", target],
             cwd=ROOT, env=env, capture_output=True, text=True,
         )  # fmt: skip
         seconds = time.perf_counter() - started
