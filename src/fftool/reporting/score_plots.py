@@ -11,7 +11,12 @@ from fftool.paper import TABLE3_FDE, TABLE4_COLLISIONS
 from fftool.reporting.plots import COLOURS, plt, save_figure
 from fftool.reporting.tables import Grid
 
-PANELS = (("min_fde", "minFDE@K (m)", TABLE3_FDE), ("nc", "collisions NC", TABLE4_COLLISIONS))
+# NC runs from a handful (eth, hotel) to thousands (univ): on a linear axis the dense scene hides the others,
+# so its panel is symmetric-log (linear below 10 collisions, logarithmic above, 0 still drawn).
+PANELS = (
+    ("min_fde", "minFDE@K (m)", TABLE3_FDE, "linear"),
+    ("nc", "collisions NC (symlog scale)", TABLE4_COLLISIONS, "symlog"),
+)
 
 
 def scores_figure(grid: Grid, out: Path, title: str) -> Path:
@@ -21,7 +26,7 @@ def scores_figure(grid: Grid, out: Path, title: str) -> Path:
     models = [p for p in grid.predictors if p != "cv"]
     fig, axes = plt.subplots(1, len(PANELS), figsize=(3.2 + 1.6 * len(scenes) * len(PANELS), 4.2), squeeze=False)
     width = 0.8 / max(len(models), 1)
-    for ax, (metric, label, published) in zip(axes[0], PANELS):
+    for ax, (metric, label, published, scale) in zip(axes[0], PANELS):
         for index, predictor in enumerate(models):
             x = np.arange(len(scenes)) + (index - (len(models) - 1) / 2) * width
             found = [grid.scores[(s, predictor, metric)] for s in scenes]
@@ -39,6 +44,7 @@ def scores_figure(grid: Grid, out: Path, title: str) -> Path:
                           label=grid.method("cv") if column == 0 else None)  # fmt: skip
         ax.set_xticks(np.arange(len(scenes)), scenes)
         ax.set_ylabel(label)
+        ax.set_yscale(scale, **({"linthresh": 10} if scale == "symlog" else {}))
         ax.grid(axis="y", alpha=0.3)
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False, fontsize=8)
