@@ -53,7 +53,7 @@ def _train(name: str, profile: Path, overrides: list[str], args: argparse.Namesp
             f"val minADE {row['val_min_ade@20_m']:.3f}  minFDE {row['val_min_fde@20_m']:.3f}",
             flush=True,
         )
-        ctx = StageContext(out, scratch, args.benchmark, "cpu", on_epoch=on_epoch)
+        ctx = StageContext(out, scratch, benchmark=args.benchmark, device_name="cpu", on_epoch=on_epoch)
         stats = cvae.train(cfg.cvae, cfg.forces, built["windows"], built["forces"], ctx)
         print(f"  {time.perf_counter() - started:.0f} s in all", flush=True)
     return [{"recipe": name, **row} for row in stats["log"]]

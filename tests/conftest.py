@@ -1,9 +1,12 @@
-"""Shared fixtures: a tiny synthetic raw tree (all 8 sources × all/train/val), a store on tmp_path, and tiny
-trained CVAEs built once per test run."""
+"""Shared fixtures: a tiny synthetic raw tree (all 8 sources × all/train/val), a store on tmp_path, and what
+is built once per test run and copied or read by the tests: the synthetic tree's tracks, windows and forces
+(`built_store`), and tiny trained CVAEs (`tiny_cvaes`)."""
 
 from __future__ import annotations
 
 import os
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +81,39 @@ def snapshot(root: Path) -> dict[str, bytes]:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in files}
 
 
+def _once_per_run(factory: pytest.TempPathFactory, worker_id: str, name: str, build: Callable[[Path], str]) -> Path:
+    """A folder `name` that `build(folder)` fills once for the whole run (pytest-xdist workers share it through a
+    lock); `build` returns the text of `done.txt`, which marks it finished."""
+    base = factory.getbasetemp()
+    shared = (base.parent if worker_id != "master" else base) / name
+    with FileLock(f"{shared}.lock"):
+        if not (shared / "done.txt").is_file():
+            (shared / "done.txt").write_text(build(shared))
+    return shared
+
+
+@pytest.fixture(scope="session")
+def _synthetic_forces(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Path:
+    from fftool import pipeline
+    from fftool.config import load_config
+
+    def build(folder: Path) -> str:
+        cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(folder / 'raw'))!r}"])
+        pipeline.run(cfg, ArtifactStore(folder / "artifacts"), ["forces"])
+        return "forces"
+
+    return _once_per_run(tmp_path_factory, worker_id, "synthetic-forces", build) / "artifacts"
+
+
+@pytest.fixture
+def built_store(_synthetic_forces: Path, tmp_path: Path) -> ArtifactStore:
+    """A store on tmp_path already holding the `raw_tree` fixture's tracks, windows and forces under the default
+    configuration (a copy of one built once per run: raw files enter fingerprints by content, so
+    `pipeline.run(cfg, built_store, ...)` with `data.raw_dir` at `raw_tree` finds them built)."""
+    shutil.copytree(_synthetic_forces, tmp_path / "artifacts", ignore=shutil.ignore_patterns(".locks"))
+    return ArtifactStore(tmp_path / "artifacts")
+
+
 # A CVAE that trains in seconds on the synthetic walkers: its weights need not be good, only fixed.
 TINY_CVAE = [
     "cvae.d_model=16", "cvae.n_heads=2", "cvae.d_ff=32", "cvae.n_layers=1", "cvae.z_dim=4", "cvae.epochs=1",
@@ -87,22 +123,19 @@ TINY_CVAE = [
 
 @pytest.fixture(scope="session")
 def tiny_cvaes(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> dict[str, object]:
-    """{"root": a store, "baseline": id, "dr": id}: tiny zara1 CVAEs, trained once for the whole run (pytest-xdist
-    workers share them through a lock). Tests read them; a test that changes a file copies the folder first."""
+    """{"root": a store, "baseline": id, "dr": id}: tiny zara1 CVAEs, trained once for the whole run. Tests read
+    them; a test that changes a file copies the folder first."""
     from fftool import pipeline
     from fftool.config import load_config, predictor_config
 
-    base = tmp_path_factory.getbasetemp()
-    shared = (base.parent if worker_id != "master" else base) / "tiny-cvaes"
-    with FileLock(f"{shared}.lock"):
-        done = shared / "ids.txt"
-        if not done.is_file():
-            cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(shared / 'raw'))!r}", *TINY_CVAE])
-            store = ArtifactStore(shared / "artifacts")
-            built = {
-                v: pipeline.run(predictor_config(cfg, v), store, ["cvae"], benchmark="zara1")
-                for v in ("baseline", "dr")
-            }
-            done.write_text("\n".join(f"{v} {b['cvae'].id}" for v, b in built.items()))
-    ids = dict(line.split() for line in done.read_text().splitlines())
+    def build(folder: Path) -> str:
+        cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(folder / 'raw'))!r}", *TINY_CVAE])
+        store = ArtifactStore(folder / "artifacts")
+        built = {
+            v: pipeline.run(predictor_config(cfg, v), store, ["cvae"], benchmark="zara1") for v in ("baseline", "dr")
+        }
+        return "\n".join(f"{v} {b['cvae'].id}" for v, b in built.items())
+
+    shared = _once_per_run(tmp_path_factory, worker_id, "tiny-cvaes", build)
+    ids = dict(line.split() for line in (shared / "done.txt").read_text().splitlines())
     return {"root": shared / "artifacts", **ids}

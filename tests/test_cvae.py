@@ -39,16 +39,20 @@ TINY = CVAEConfig(
 
 
 @pytest.fixture
-def inputs(raw_tree: Path, tmp_path: Path) -> dict:
+def inputs(raw_tree: Path, built_store: ArtifactStore) -> dict:
     cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}"])
-    return pipeline.run(cfg, ArtifactStore(tmp_path / "artifacts"), ["forces"])
+    return pipeline.run(cfg, built_store, ["forces"])
 
 
 def _train(inputs: dict, tmp_path: Path, name: str, cfg: CVAEConfig, on_progress=None) -> dict:
     out = tmp_path / name
     out.mkdir(exist_ok=True)
     ctx = StageContext(
-        out, tmp_path / "scratch", "zara1", "cpu", **({"on_progress": on_progress} if on_progress else {})
+        out,
+        tmp_path / "scratch",
+        benchmark="zara1",
+        device_name="cpu",
+        **({"on_progress": on_progress} if on_progress else {}),
     )
     return cvae.train(cfg, ForcesConfig(), inputs["windows"], inputs["forces"], ctx)
 

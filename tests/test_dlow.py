@@ -70,11 +70,11 @@ def test_the_linear_schedule_is_agentformers() -> None:
     assert factors[-1] == pytest.approx(1 - 39 / 41)
 
 
-def test_a_crowded_window_is_planned_by_the_agents_it_carries(raw_tree: Path, tmp_path: Path) -> None:
+def test_a_crowded_window_is_planned_by_the_agents_it_carries(raw_tree: Path, built_store: ArtifactStore) -> None:
     """With max_agents = 2, a 3-agent window costs a 2-agent window's share of the pair budget: batches
     planned by capped counts hold as many windows as the budget allows."""
     cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}"])
-    windows = pipeline.run(cfg, ArtifactStore(tmp_path), ["windows"])["windows"]
+    windows = pipeline.run(cfg, built_store, ["windows"])["windows"]
     scenes = load_scene_set(windows, None, "zara1", "train", reads=())
     crowded = np.flatnonzero(scenes.agents() == 3)
     assert len(crowded) >= 8
@@ -92,10 +92,9 @@ def test_a_crowded_window_is_planned_by_the_agents_it_carries(raw_tree: Path, tm
 
 @pytest.mark.slow
 def test_dlow_trains_resumes_and_evaluate_draws_through_it(
-    raw_tree: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    raw_tree: Path, built_store: ArtifactStore, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    cfg, cpu = _cfg(raw_tree), pipeline.Runtime("cpu")
-    store = ArtifactStore(tmp_path / "artifacts")
+    cfg, cpu, store = _cfg(raw_tree), pipeline.Runtime("cpu"), built_store
     built = pipeline.run(cfg, store, ["dlow"], benchmark="zara1", runtime=cpu)
     stats = built["dlow"].manifest.stats
     assert [row["epoch"] for row in stats["log"]] == [1, 2] and stats["variant"] == "baseline"
@@ -133,7 +132,7 @@ def test_dlow_trains_resumes_and_evaluate_draws_through_it(
     assert prior["sampler"] == "cvae prior" and prior["min_ade"] != evaluation.manifest.stats["min_ade"]
 
 
-def test_the_fair_protocol_decodes_code_j_for_goal_j(raw_tree: Path, tmp_path: Path) -> None:
+def test_the_fair_protocol_decodes_code_j_for_goal_j(raw_tree: Path, built_store: ArtifactStore) -> None:
     """Under the fair protocol each sample has its own goal, so its own past: sample j decodes code j of the
     sampler applied to that sample's context (the same code as the paper protocol when the goals agree)."""
     from fftool.learning.cvae_model import build_model, sample
@@ -141,7 +140,7 @@ def test_the_fair_protocol_decodes_code_j_for_goal_j(raw_tree: Path, tmp_path: P
     from fftool.learning.protocols import repeat_windows
 
     cfg = _cfg(raw_tree)
-    windows = pipeline.run(cfg, ArtifactStore(tmp_path), ["windows"])["windows"]
+    windows = pipeline.run(cfg, built_store, ["windows"])["windows"]
     scenes = load_scene_set(windows, None, "zara1", "test", reads=())
     torch.manual_seed(0)
     model, sampler = build_model(cfg.cvae).eval(), QNet(16, 4, 3, (8,)).eval()

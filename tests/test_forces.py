@@ -65,9 +65,9 @@ def test_goal_is_the_only_future_input() -> None:
 
 
 @pytest.fixture
-def built(raw_tree: Path, store: ArtifactStore) -> dict:
+def built(raw_tree: Path, built_store: ArtifactStore) -> dict:
     cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}"])
-    return pipeline.run(cfg, store, ["forces"])
+    return pipeline.run(cfg, built_store, ["forces"])
 
 
 def test_arrays_align_with_agent_windows(built: dict) -> None:

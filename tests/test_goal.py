@@ -32,11 +32,10 @@ SAMPLING = GoalsConfig(k=5, samples=200, kmeans_iterations=5)
 
 
 @pytest.fixture
-def inputs(raw_tree: Path, tmp_path: Path) -> dict:
+def inputs(raw_tree: Path, built_store: ArtifactStore, tmp_path: Path) -> dict:
     make_scene(tmp_path / "scenes" / "zara1")
     cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}", f"data.scenes_dir={str(tmp_path / 'scenes')!r}"])
-    store = ArtifactStore(tmp_path / "artifacts")
-    built = pipeline.run(cfg, store, ["windows", "maps"])
+    built = pipeline.run(cfg, built_store, ["windows", "maps"])
     return {"windows": built["windows"], "maps": built["maps"]}
 
 
@@ -44,7 +43,11 @@ def _train(inputs: dict, tmp_path: Path, name: str, cfg: GoalConfig = TINY, on_p
     out = tmp_path / name
     out.mkdir(exist_ok=True)
     ctx = StageContext(
-        out, tmp_path / "scratch", "zara1", "cpu", **({"on_progress": on_progress} if on_progress else {})
+        out,
+        tmp_path / "scratch",
+        benchmark="zara1",
+        device_name="cpu",
+        **({"on_progress": on_progress} if on_progress else {}),
     )
     return goal.train(cfg, SAMPLING, inputs["windows"], inputs["maps"], ctx)
 

@@ -87,12 +87,13 @@ def test_every_shipped_profile_loads_and_plans_the_whole_dag(profile: Path) -> N
         assert ("goals" in names) == (predictor in ("goal", "dr", "re"))
 
 
-def test_a_missing_artifact_names_the_command_with_benchmark_and_variant(raw_tree: Path, tmp_path: Path) -> None:
+def test_a_missing_artifact_names_the_command_with_benchmark_and_variant(
+    raw_tree: Path, built_store: ArtifactStore
+) -> None:
     cfg = _cfg(raw_tree, "cvae.variant='dr'")
-    store = ArtifactStore(tmp_path / "artifacts")
-    pipeline.run(cfg, store, ["forces"])
+    assert not pipeline.run(cfg, built_store, ["forces"]).new  # the forces are built, the CVAE is not
     with pytest.raises(FftoolError, match=r"run `fftool train-cvae --benchmarks zara1 --variant dr` first"):
-        pipeline.run(cfg, store, ["evaluate"], upstream=False, benchmark="zara1")
+        pipeline.run(cfg, built_store, ["evaluate"], upstream=False, benchmark="zara1")
 
 
 def test_a_grid_seed_changes_the_seeded_stages_and_nothing_upstream(raw_tree: Path) -> None:

@@ -32,9 +32,9 @@ def test_paper_protocol_gives_every_sample_the_goal_closest_to_the_truth() -> No
 
 
 @pytest.fixture
-def scene(raw_tree: Path, tmp_path: Path) -> dict:
+def scene(raw_tree: Path, built_store: ArtifactStore) -> dict:
     cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}"])
-    built = pipeline.run(cfg, ArtifactStore(tmp_path / "artifacts"), ["forces"])
+    built = pipeline.run(cfg, built_store, ["forces"])
     scenes = load_scene_set(built["windows"], built["forces"], "zara1", "test")
     return {"scenes": scenes, "batch": scenes.batch(np.arange(min(scenes.windows, 6)))}
 

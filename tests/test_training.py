@@ -228,7 +228,7 @@ def _fit(
         model=model, optimizer=optimizer, device=torch.device("cpu"), epoch=train_epoch, validate=validate
     )
     run = SimpleNamespace(
-        out_dir=out,
+        dir=out,
         scratch=tmp_path / "scratch",
         on_progress=on_progress,
         on_epoch=None if rows is None else rows.append,

@@ -19,6 +19,7 @@ stage. Stages never import each other.
 from __future__ import annotations
 
 import contextlib
+import functools
 import tempfile
 import time
 from collections.abc import Iterable, Iterator, Mapping
@@ -220,33 +221,35 @@ def _build(
     started = time.perf_counter()
     store.check_inputs(inputs)
     checked_s = time.perf_counter() - started
-    with (
-        _naming_os_errors(item, store.root),
-        store.build(
-            stage.name, fp, schema_version=stage.version, params=item.params, inputs=item.inputs, sources=item.sources
-        ) as built_ctx,
-        progress() as bar,
-    ):
+    with _naming_os_errors(item, store.root), progress() as bar:
         task = bar.add_task(item.description, total=None)
-        ctx = StageContext(
-            out_dir=built_ctx.dir,
-            scratch=built_ctx.scratch,
+        context = functools.partial(
+            StageContext,
             benchmark=item.benchmark,
             device_name=runtime.device,
             on_progress=lambda phase, done, total: bar.update(task, completed=done, total=total, description=phase),
             on_epoch=lambda row: bar.console.print("  " + "  ".join(_cell(k, v) for k, v in row.items())),
         )
-        _announce(stage, runtime, built_ctx.scratch)
-        stats = stage.build(item.config_view(cfg), inputs, ctx)
-        for message in stats.get("warnings", []):  # a stage's warnings stay in its manifest too
-            warn(message)
-        build_s = time.perf_counter() - started - checked_s
-        built_ctx.stats = stats | {"input_check_seconds": round(checked_s, 4), "build_seconds": round(build_s, 3)}
-    assert built_ctx.artifact is not None
+        with store.build(
+            stage.name,
+            fp,
+            schema_version=stage.version,
+            params=item.params,
+            inputs=item.inputs,
+            sources=item.sources,
+            context=context,
+        ) as ctx:
+            _announce(stage, runtime, ctx.scratch)
+            stats = stage.build(item.config_view(cfg), inputs, ctx)
+            for message in stats.get("warnings", []):  # a stage's warnings stay in its manifest too
+                warn(message)
+            build_s = time.perf_counter() - started - checked_s
+            ctx.stats = stats | {"input_check_seconds": round(checked_s, 4), "build_seconds": round(build_s, 3)}
+    assert ctx.artifact is not None
     if stage.distributed:
         distributed.barrier()  # the other ranks read the installed artifact
-    log(f"stage {stage.name!r}: wrote {built_ctx.artifact.path}")
-    return built_ctx.artifact
+    log(f"stage {stage.name!r}: wrote {ctx.artifact.path}")
+    return ctx.artifact
 
 
 @contextlib.contextmanager
@@ -286,7 +289,7 @@ def _follow(
     if scratch is not None:
         inputs = {name: built[name] for name in item.reads.artifacts}
         with tempfile.TemporaryDirectory(prefix=f"fftool-rank{distributed.rank()}-") as tmp:
-            ctx = StageContext(Path(tmp), Path(scratch), item.benchmark, runtime.device)
+            ctx = StageContext(Path(tmp), Path(scratch), benchmark=item.benchmark, device_name=runtime.device)
             stage.build(item.config_view(cfg), inputs, ctx)
         distributed.barrier()  # rank 0 has installed the artifact
     return store.require(stage.name, item.fingerprint, stage.version, item.command_line)

@@ -18,11 +18,11 @@ import re
 import shutil
 import subprocess
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from filelock import FileLock, Timeout
 
@@ -222,6 +222,19 @@ def _hash_files(folder: Path) -> dict[str, dict[str, Any]]:
         if name != MANIFEST:
             files[name] = {"sha256": sha256_file(path), "bytes": path.stat().st_size}
     return files
+
+
+@dataclass
+class BuildContext:
+    """What a build writes into (`dir`), keeps across attempts (`scratch`) and reports (`stats`)."""
+
+    dir: Path
+    scratch: Path  # kept when a build fails (resume state); removed once the artifact is installed
+    stats: dict[str, Any] = field(default_factory=dict)
+    artifact: Artifact | None = None
+
+
+C = TypeVar("C", bound=BuildContext)
 
 
 class ArtifactStore:
@@ -430,8 +443,12 @@ class ArtifactStore:
         params: Mapping[str, Any],
         inputs: Mapping[str, str],
         sources: Mapping[str, str] | None = None,
-    ) -> Iterator[BuildContext]:
+        context: Callable[[Path, Path], C] = BuildContext,  # type: ignore[assignment]
+    ) -> Iterator[C]:
         """Build an artifact atomically: write into `ctx.dir`, set `ctx.stats`; rename on success.
+
+        `context(dir, scratch)` makes the yielded context: a plain `BuildContext`, or a richer one (the
+        stages' `StageContext`) that carries how the build runs and reports.
 
         Holds the fingerprint's lock throughout, so builds of one fingerprint never overlap. On any
         exception (KeyboardInterrupt included) the temporary folder is removed and an existing artifact
@@ -439,7 +456,7 @@ class ArtifactStore:
         """
         try:
             with self.lock(kind, fp):
-                yield from self._build_locked(kind, fp, schema_version, params, inputs, sources or {})
+                yield from self._build_locked(kind, fp, schema_version, params, inputs, sources or {}, context)
         finally:
             if self._fresh and not self.path_for(kind, fp).exists():  # a failed first build leaves no trace
                 lock_path = self._lock_path(kind, fp)
@@ -455,12 +472,13 @@ class ArtifactStore:
         params: Mapping[str, Any],
         inputs: Mapping[str, str],
         sources: Mapping[str, str],
-    ) -> Iterator[BuildContext]:
+        context: Callable[[Path, Path], C],
+    ) -> Iterator[C]:
         self.clean_incomplete()
         tmp = self.root / _INCOMPLETE / f"{kind}-{fp[:_FP_DIR_LEN]}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
-        ctx = BuildContext(dir=tmp, scratch=self.root / _SCRATCH / f"{kind}-{fp[:_FP_DIR_LEN]}")
+        ctx = context(tmp, self.root / _SCRATCH / f"{kind}-{fp[:_FP_DIR_LEN]}")
         try:
             yield ctx
             manifest = Manifest(
@@ -541,16 +559,6 @@ class ArtifactStore:
             shutil.rmtree(aside, ignore_errors=True)
         else:
             warn(f"{final} could not be read as an artifact; it was moved to {aside}, not deleted")
-
-
-@dataclass
-class BuildContext:
-    """What a build writes into (`dir`), keeps across attempts (`scratch`) and reports (`stats`)."""
-
-    dir: Path
-    scratch: Path  # kept when a build fails (resume state); removed once the artifact is installed
-    stats: dict[str, Any] = field(default_factory=dict)
-    artifact: Artifact | None = None
 
 
 def check_schema(artifact: Artifact, kind: str, schema_version: int | None = None, made_by: str | None = None) -> None:

@@ -323,7 +323,7 @@ class Trainer(Protocol):
 class Run(Protocol):
     """Where a training writes and whom it tells (a stage's StageContext is one)."""
 
-    out_dir: Path
+    dir: Path
     scratch: Path
     on_progress: Callable[[str, int, int], None] | None
     on_epoch: Callable[[dict[str, Any]], None] | None
@@ -338,7 +338,7 @@ def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log
     checkpoint of the model, the optimizer and the progress, so a run killed mid-epoch and started again
     redoes that epoch and ends with the same weights as an uninterrupted run. Log rows are (epoch, seconds,
     training columns, validation metrics); they go to `run.on_epoch`, TensorBoard (live under `run.scratch`,
-    copied into `run.out_dir` at the end) and `run.out_dir / log_name`. `run.on_progress` gets
+    copied into `run.dir` at the end) and `run.dir / log_name`. `run.on_progress` gets
     ("epoch e/E", done, total) from each tick of `trainer.epoch`.
 
     Under torchrun (`distributed`), rank 0 alone validates (its metrics are broadcast, so every rank keeps
@@ -367,8 +367,8 @@ def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log
                 run.on_epoch(row)
             save_progress(checkpoint, progress, epoch, stateful)
     if curves is not None:
-        curves.finish(run.out_dir)
-        write_csv(run.out_dir / log_name, progress.log)
+        curves.finish(run.dir)
+        write_csv(run.dir / log_name, progress.log)
     return progress
 
 

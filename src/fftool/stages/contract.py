@@ -14,12 +14,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
 
-from fftool.artifacts.store import Artifact
+from fftool.artifacts.store import Artifact, BuildContext
 from fftool.config import PipelineConfig
 from fftool.errors import FftoolError
 
@@ -31,12 +30,11 @@ def _ignore(*_: Any) -> None:
     return None
 
 
-@dataclass(frozen=True)
-class StageContext:
-    """Where a build writes (`out_dir`), what it keeps across attempts (`scratch`), how it runs and reports."""
+@dataclass(kw_only=True)
+class StageContext(BuildContext):
+    """The store's build context (where a build writes, `dir`; what it keeps across attempts, `scratch`; its
+    `stats`) with what a stage needs besides: its benchmark, its device, whom it tells of its progress."""
 
-    out_dir: Path
-    scratch: Path  # kept when a build fails (resume state); removed once the artifact is installed
     benchmark: str | None = None  # set for per-benchmark stages
     device_name: str = "auto"  # auto | cpu | cuda
     on_progress: OnProgress = _ignore

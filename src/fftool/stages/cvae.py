@@ -176,7 +176,7 @@ def train(
     windows, forces: input artifacts (no forces for the baseline and goal variants); ctx: the benchmark,
     build and scratch folders, device, callbacks.
     """
-    benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.out_dir
+    benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.dir
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
     started, best_by = time.perf_counter(), f"val_min_ade@{cfg.k}_m"
     progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=CVAE_LOG_FILE)

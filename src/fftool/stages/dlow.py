@@ -147,7 +147,7 @@ def train(cfg: DLowConfig, windows: Artifact, forces: Artifact | None, cvae: Art
     started, best_by = time.perf_counter(), f"val_min_ade@{cfg.k}_m"
     progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=DLOW_LOG_FILE)
     save_checkpoint(
-        ctx.out_dir / DLOW_MODEL_FILE,
+        ctx.dir / DLOW_MODEL_FILE,
         {
             "state_dict": progress.best_state,
             "d_model": trained.config.d_model,

@@ -310,7 +310,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
         cfg.forces,
         inputs["tracks"],
         inputs["windows"],
-        ctx.out_dir,
+        ctx.dir,
         device=ctx.device(),
         on_sequence=lambda name, _: ctx.on_progress(f"social forces: {name}", next(done), total),
     )

@@ -163,7 +163,7 @@ def train(
     cfg: the `goal` section; goals_cfg: the sampling used for validation goal-FDE@K; windows, maps: input
     artifacts; ctx: the benchmark (its train part is used), build and scratch folders, device, callbacks.
     """
-    benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.out_dir
+    benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.dir
     trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
     started, best_by = time.perf_counter(), f"val_goal_fde@{goals_cfg.k}_m"
     progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=GOAL_LOG_FILE)

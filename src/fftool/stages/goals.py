@@ -96,7 +96,7 @@ def sample(
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: K goals per agent-window of one benchmark."""
     upstream = (inputs["goal"], inputs["windows"], inputs["maps"])
-    return sample(cfg.goals, ctx.need_benchmark(), *upstream, ctx.out_dir, ctx.device(), on_progress=ctx.on_progress)
+    return sample(cfg.goals, ctx.need_benchmark(), *upstream, ctx.dir, ctx.device(), on_progress=ctx.on_progress)
 
 
 STAGE = Stage(

@@ -270,8 +270,8 @@ def rasterise_dataset(cfg: MapsConfig, dataset_toml: Path, out_dir: Path) -> dic
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: one raster per scene of `data.scenes_dir` (or the scene of `data.dataset`)."""
     if cfg.data.dataset:
-        return rasterise_dataset(cfg.maps, Path(cfg.data.dataset), ctx.out_dir)
-    return rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.out_dir)
+        return rasterise_dataset(cfg.maps, Path(cfg.data.dataset), ctx.dir)
+    return rasterise(cfg.maps, Path(cfg.data.scenes_dir), ctx.dir)
 
 
 def declare(cfg: PipelineConfig) -> Reads:

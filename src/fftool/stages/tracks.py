@@ -173,12 +173,12 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
         dataset = load_dataset(cfg.data.dataset)
         total, count = len(dataset.files()), iter(range(1, len(dataset.files()) + 1))
         return ingest_dataset(
-            cfg.ingest, dataset, ctx.out_dir, on_file=lambda name: ctx.on_progress(name, next(count), total)
+            cfg.ingest, dataset, ctx.dir, on_file=lambda name: ctx.on_progress(name, next(count), total)
         )
     files = len(SOURCES) * len(SPLITS)
     done = iter(range(1, files + 1))
     return ingest_raw(
-        cfg.ingest, Path(cfg.data.raw_dir), ctx.out_dir, on_file=lambda name: ctx.on_progress(name, next(done), files)
+        cfg.ingest, Path(cfg.data.raw_dir), ctx.dir, on_file=lambda name: ctx.on_progress(name, next(done), files)
     )
 
 

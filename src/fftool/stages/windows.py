@@ -156,7 +156,7 @@ def _assemble(
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: every benchmark part's windows and agent-windows from the tracks."""
-    return slice_all(cfg.windows, inputs["tracks"], ctx.out_dir)
+    return slice_all(cfg.windows, inputs["tracks"], ctx.dir)
 
 
 STAGE = Stage(
