@@ -102,7 +102,7 @@ def _synthetic_forces(tmp_path_factory: pytest.TempPathFactory, worker_id: str) 
         pipeline.run(cfg, ArtifactStore(folder / "artifacts"), ["forces"])
         return "forces"
 
-    return _once_per_run(tmp_path_factory, worker_id, "synthetic-forces", build) / "artifacts"
+    return _once_per_run(tmp_path_factory, worker_id, "synthetic-forces", build)
 
 
 @pytest.fixture
@@ -110,7 +110,7 @@ def built_store(_synthetic_forces: Path, tmp_path: Path) -> ArtifactStore:
     """A store on tmp_path already holding the `raw_tree` fixture's tracks, windows and forces under the default
     configuration (a copy of one built once per run: raw files enter fingerprints by content, so
     `pipeline.run(cfg, built_store, ...)` with `data.raw_dir` at `raw_tree` finds them built)."""
-    shutil.copytree(_synthetic_forces, tmp_path / "artifacts", ignore=shutil.ignore_patterns(".locks"))
+    shutil.copytree(_synthetic_forces / "artifacts", tmp_path / "artifacts", ignore=shutil.ignore_patterns(".locks"))
     return ArtifactStore(tmp_path / "artifacts")
 
 
@@ -122,14 +122,15 @@ TINY_CVAE = [
 
 
 @pytest.fixture(scope="session")
-def tiny_cvaes(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> dict[str, object]:
-    """{"root": a store, "baseline": id, "dr": id}: tiny zara1 CVAEs, trained once for the whole run. Tests read
-    them; a test that changes a file copies the folder first."""
+def tiny_cvaes(_synthetic_forces: Path, tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> dict[str, object]:
+    """{"root": a store, "baseline": id, "dr": id}: tiny zara1 CVAEs, trained once for the whole run over a copy
+    of the synthetic forces store. Tests read them; a test that changes a file copies the folder first."""
     from fftool import pipeline
     from fftool.config import load_config, predictor_config
 
     def build(folder: Path) -> str:
-        cfg = load_config(None, [f"data.raw_dir={str(make_raw_tree(folder / 'raw'))!r}", *TINY_CVAE])
+        cfg = load_config(None, [f"data.raw_dir={str(_synthetic_forces / 'raw')!r}", *TINY_CVAE])
+        shutil.copytree(_synthetic_forces / "artifacts", folder / "artifacts", ignore=shutil.ignore_patterns(".locks"))
         store = ArtifactStore(folder / "artifacts")
         built = {
             v: pipeline.run(predictor_config(cfg, v), store, ["cvae"], benchmark="zara1") for v in ("baseline", "dr")
