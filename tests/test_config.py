@@ -9,15 +9,15 @@ import pytest
 from typer.testing import CliRunner
 
 from fftool.cli import app
-from fftool.config import PipelineConfig, load_config, predictor_config
+from fftool.config import SECTIONS, PipelineConfig, load_config, predictor_config, variant_section
 from fftool.dataset.scenes import BENCHMARK_TEST_SOURCES, BENCHMARKS
 from fftool.errors import ConfigError
 from fftool.paper import FORCEFORMER_VARIANTS, PAPER_NAMES, PREDICTORS
 
 FLOAT_KEYS = [
     f"{section}.{name}"
-    for section, info in PipelineConfig.model_fields.items()
-    for name, field in info.annotation.model_fields.items()
+    for section in SECTIONS
+    for name, field in PipelineConfig.model_fields[section].annotation.model_fields.items()
     if field.annotation is float
 ]
 
@@ -124,3 +124,44 @@ def test_a_boolean_is_never_read_as_a_number(tmp_path: Path, key: str) -> None:
     with pytest.raises(ConfigError, match=rf"{key}: Value error, expected .*not the boolean true"):
         load_config(path)
     assert load_config(None, ["cvae.rotate=false"]).cvae.rotate is False  # a boolean where one belongs
+
+
+def test_a_variants_recipe_replaces_its_keys_for_that_variant_alone(tmp_path: Path) -> None:
+    path = tmp_path / "p.toml"
+    path.write_text("[cvae]\nepochs = 12\n\n[per_variant.baseline.cvae]\nbest_of_k_warmup_epochs = 2\nepochs = 20\n")
+    cfg = load_config(path, ["per_variant.dr.dlow.qnet_hidden=[128, 64]"])
+    baseline, dr = predictor_config(cfg, "baseline"), predictor_config(cfg, "dr")
+    assert (variant_section(baseline, "cvae").epochs, variant_section(baseline, "cvae").best_of_k_warmup_epochs) == (
+        20,
+        2,
+    )
+    assert (variant_section(dr, "cvae").epochs, variant_section(dr, "cvae").best_of_k_warmup_epochs) == (12, 0)
+    assert variant_section(dr, "dlow").qnet_hidden == (128, 64) and variant_section(baseline, "dlow").qnet_hidden == (
+        512,
+        256,
+    )
+    assert cfg.cvae.epochs == 12  # the section itself stays the profile's: switching variants loses nothing
+    assert variant_section(predictor_config(baseline, "dr"), "cvae") == variant_section(dr, "cvae")
+
+
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("per_variant.baseline.cvae.epoch=3", "per_variant.baseline.cvae.epoch: expected a key of the [cvae] section"),
+        ("per_variant.dr.dlow.lr=-1", "per_variant.dr.dlow.lr: expected Input should be greater than 0 (got -1)"),
+        (
+            "per_variant.goal.cvae.n_heads=3",
+            "per_variant.goal.cvae.n_heads: expected a divisor of d_model = 256 (got 3)",
+        ),
+        ("per_variant.re.cvae.seed=1", "per_variant.re.cvae.seed: expected a key the variants may differ in"),
+        ("per_variant.baseline.cvae.variant='dr'", "per_variant.baseline.cvae.variant: expected a key the variants"),
+        ("per_variant.baseline.goal.epochs=3", "unknown key 'per_variant.baseline.goal'"),
+        ("per_variant.teleport.cvae.epochs=3", "per_variant.teleport"),
+        ("per_variant.baseline.epochs=3", "expected section.key=value, e.g. ingest.frame_stride=10, or per_variant."),
+        ("cvae.epochs.x=3", "expected section.key=value"),
+    ],
+)
+def test_a_bad_variant_recipe_names_its_key(override: str, expected: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load_config(None, [override])
+    assert expected in str(caught.value)

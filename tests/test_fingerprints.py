@@ -19,7 +19,7 @@ from pydantic import BaseModel, ValidationError
 from fftool import pipeline
 from fftool.artifacts.schema import FORCES_ARRAYS
 from fftool.artifacts.store import Artifact, ArtifactStore
-from fftool.config import PipelineConfig, load_config, predictor_config
+from fftool.config import SECTIONS, PipelineConfig, load_config, predictor_config
 from fftool.stages.contract import Reads, Stage, StageContext, UndeclaredRead, allowed_keys
 from fftool.stages.forces import ARRAY_PARAMS
 from fftool.stages.goal import VALIDATION_SAMPLING
@@ -71,7 +71,7 @@ def _locations(cfg: PipelineConfig) -> set[str]:
 def _fields(cfg: PipelineConfig) -> list[str]:
     return [
         f"{section}.{name}"
-        for section in type(cfg).model_fields
+        for section in SECTIONS
         for name in type(getattr(cfg, section)).model_fields
         if f"{section}.{name}" not in SELECTORS | _locations(cfg)
     ]
@@ -265,3 +265,19 @@ def test_the_view_hands_whole_sections_parts_of_sections_and_nothing_else(base: 
         _ = view.forces.fov_deg  # the repulsive force's constant: dr does not read it
     with pytest.raises(UndeclaredRead, match=r"goal\.epochs"):
         _ = view.goal.epochs
+
+
+def test_a_variants_recipe_moves_that_variants_cells_alone_to_the_fingerprints_of_its_values(
+    base: PipelineConfig,
+) -> None:
+    """`[per_variant.baseline.cvae]` retrains the baseline (and what draws from it) and nothing else, and the
+    baseline's fingerprints are those of the same values set for every variant: one model, however asked for."""
+    everywhere = _with(base, "cvae.best_of_k_warmup_epochs")
+    warmup = everywhere.cvae.best_of_k_warmup_epochs
+    recipe = {"per_variant": {"baseline": {"cvae": {"best_of_k_warmup_epochs": warmup}}}}
+    before, after = _fingerprints(base), _fingerprints(PipelineConfig.model_validate(base.model_dump() | recipe))
+    same_values = _fingerprints(everywhere)
+    moved = {label for label in before if after[label] != before[label]}
+    assert moved == {"cvae[baseline]", "dlow[baseline]", "evaluate[baseline,paper]", "evaluate[baseline,oracle]",
+                     "evaluate[baseline+dlow,paper]"}  # fmt: skip
+    assert all(after[label] == same_values[label] for label in moved)

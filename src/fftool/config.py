@@ -3,11 +3,14 @@
 A pipeline file (`pipelines/*.toml`) overrides the defaults and `--set section.key=value` overrides the
 file. Unknown keys, type mismatches, infinities, NaNs and values out of range (alone or with respect to
 another key of their section) raise `ConfigError` naming the key, before any stage runs. Each stage's fingerprint
-hashes only its own section (resolved, defaults included), so changing a default rebuilds that stage.
+hashes only its own section (resolved, defaults included), so changing a default rebuilds that stage. A variant's
+own recipe (`[per_variant.<variant>.cvae]`, `.dlow`) replaces keys of those sections for that variant alone; the
+fingerprint hashes the values it trained with (`variant_section`).
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import sys
 from collections.abc import Mapping
@@ -355,6 +358,23 @@ class ReportConfig(_Section):
     confidence: float = Field(0.95, gt=0, lt=1)
 
 
+# The keys every variant shares: which variant a section trains, which predictors draw through DLow, and the
+# seeds (grid parameters, set in every seeded section at once by `seeded_config`).
+_SHARED_BY_VARIANTS: Final = frozenset({"variant", "variants", "seed"})
+
+
+class VariantRecipe(_Section):
+    """The cvae and dlow keys one variant trains with instead of the profile's (`[per_variant.<variant>.cvae]`):
+    a recipe chosen on validation for one variant leaves the others, and their fingerprints, alone."""
+
+    cvae: dict[str, Any] = {}
+    dlow: dict[str, Any] = {}
+
+
+def _with_overrides(section: _Section, overrides: Mapping[str, Any]) -> _Section:
+    return type(section).model_validate(section.model_dump() | dict(overrides)) if overrides else section
+
+
 class PipelineConfig(_Section):
     """The whole pipeline's configuration, as resolved from defaults, a file and overrides."""
 
@@ -369,6 +389,50 @@ class PipelineConfig(_Section):
     dlow: DLowConfig = DLowConfig()
     evaluate: EvaluateConfig = EvaluateConfig()
     report: ReportConfig = ReportConfig()
+    # A variant's own recipe: its keys replace the cvae and dlow sections' when that variant trains
+    # (`variant_section`); a fingerprint records the values a model trained with, never this table.
+    per_variant: dict[Variant, VariantRecipe] = {}
+
+    @model_validator(mode="after")
+    def _per_variant_recipes_resolve(self) -> PipelineConfig:
+        """Every variant's recipe names keys of its section that the section accepts with those values."""
+        for variant, recipe in self.per_variant.items():
+            for name in VariantRecipe.model_fields:
+                where, overrides = f"per_variant.{variant}.{name}", getattr(recipe, name)
+                shared = sorted(overrides.keys() & _SHARED_BY_VARIANTS)
+                if shared:
+                    raise _expected(
+                        f"{where}.{shared[0]}",
+                        "a key the variants may differ in (not variant, variants or seed)",
+                        shared[0],
+                    )
+                try:
+                    _with_overrides(getattr(self, name), overrides)
+                except ValidationError as exc:
+                    issue = exc.errors()[0]
+                    if issue["type"] == "cross_field":
+                        raise _expected(
+                            f"{where}.{issue['ctx']['key']}", issue["ctx"]["expected"], issue["ctx"]["got"]
+                        ) from None
+                    key = ".".join(str(part) for part in issue["loc"])
+                    expected = f"a key of the [{name}] section" if issue["type"] == "extra_forbidden" else issue["msg"]
+                    raise _expected(f"{where}.{key}", expected, issue.get("input")) from None
+        return self
+
+
+# The stage sections of a configuration (per_variant is recipes over two of them, not a section).
+SECTIONS: Final = tuple(name for name in PipelineConfig.model_fields if name != "per_variant")
+
+
+def variant_section(cfg: PipelineConfig, name: str) -> _Section:
+    """Section `name` as the cvae section's variant runs with it: the profile's, with the keys that variant sets
+    in `[per_variant.<variant>.<name>]` (cvae and dlow). Fingerprints and builds read sections through this."""
+    if name not in SECTIONS:
+        raise AttributeError(f"{name!r} is not a configuration section")
+    section = getattr(cfg, name)
+    recipe = cfg.per_variant.get(cfg.cvae.variant)
+    overrides = getattr(recipe, name, None) if recipe is not None else None
+    return _with_overrides(section, overrides) if overrides else section
 
 
 # What a grid seed sets: every stage whose result depends on random numbers of training or sampling. The
@@ -438,7 +502,7 @@ def apply_overrides(
     Typed values (what CLI options already parsed, e.g. a path) are set as they are, never turned into
     text and parsed again. Unknown sections fail in validation.
     """
-    merged = {k: dict(v) if isinstance(v, dict) else v for k, v in raw.items()}
+    merged = copy.deepcopy(raw)
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
@@ -450,14 +514,20 @@ def apply_overrides(
 
 
 def _set(merged: dict[str, Any], key: str, value: Any, what: str) -> None:
+    """section.key, or per_variant.<variant>.<section>.key for one variant's recipe."""
     parts = key.split(".")
-    if len(parts) != 2 or not all(parts):
-        raise ConfigError(f"{what}: expected section.key=value, e.g. ingest.frame_stride=10")
-    section, name = parts
-    target = merged.setdefault(section, {})
-    if not isinstance(target, dict):
-        raise ConfigError(f"{what}: {section!r} is not a section")
-    target[name] = value
+    depth = 4 if parts[0] == "per_variant" else 2
+    if len(parts) != depth or not all(parts):
+        raise ConfigError(
+            f"{what}: expected section.key=value, e.g. ingest.frame_stride=10, or "
+            "per_variant.<variant>.<section>.key=value, e.g. per_variant.baseline.cvae.epochs=20"
+        )
+    target = merged
+    for depth, part in enumerate(parts[:-1], start=1):
+        target = target.setdefault(part, {})
+        if not isinstance(target, dict):
+            raise ConfigError(f"{what}: {'.'.join(parts[:depth])!r} is not a section")
+    target[parts[-1]] = value
 
 
 def _describe(error: ValidationError, origin: str) -> str:
@@ -468,7 +538,9 @@ def _describe(error: ValidationError, origin: str) -> str:
             lines.append(f"unknown key {key!r}")
         elif issue["type"] == "cross_field":
             context = issue["ctx"]
-            lines.append(f"{key}.{context['key']}: expected {context['expected']} (got {context['got']!r})")
+            lines.append(
+                f"{key + '.' if key else ''}{context['key']}: expected {context['expected']} (got {context['got']!r})"
+            )
         else:
             lines.append(f"{key}: {issue['msg']} (got {issue.get('input')!r})")
     return f"invalid configuration in {origin}: " + "; ".join(lines)

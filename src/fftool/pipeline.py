@@ -29,7 +29,7 @@ from typing import Any
 
 from fftool.artifacts.hashing import fingerprint
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
-from fftool.config import PipelineConfig, benchmark_names
+from fftool.config import PipelineConfig, benchmark_names, variant_section
 from fftool.errors import FftoolError, UsageError
 from fftool.learning import distributed
 from fftool.stages import cvae, dlow, evaluate, forces, goal, goals, maps, tracks, windows
@@ -122,14 +122,14 @@ def _record(cfg: PipelineConfig, stage: Stage, declared: frozenset[str]) -> dict
     stage's own section under bare names, its keys the build does not read at their defaults; others as is."""
     record: dict[str, Any] = {}
     if stage.section is not None:
-        section = getattr(cfg, stage.section)
+        section = variant_section(cfg, stage.section)
         defaults = type(section)().model_dump(mode="json")
         values = section.model_dump(mode="json")
         record = {key: values[key] if f"{stage.section}.{key}" in declared else defaults[key] for key in values}
     for dotted in sorted(declared):
         name, key = dotted.split(".")
         if name != stage.section:
-            record[dotted] = getattr(cfg, name).model_dump(mode="json")[key]
+            record[dotted] = variant_section(cfg, name).model_dump(mode="json")[key]
     return record
 
 

@@ -19,7 +19,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from fftool.artifacts.store import Artifact, BuildContext
-from fftool.config import PipelineConfig
+from fftool.config import PipelineConfig, variant_section
 from fftool.errors import FftoolError
 
 OnProgress = Callable[[str, int, "int | None"], None]  # (phase, done, total)
@@ -161,9 +161,7 @@ class ConfigView:
         self._cfg, self._allowed, self._stage = cfg, allowed, stage
 
     def __getattr__(self, name: str) -> Any:
-        if name not in type(self._cfg).model_fields:
-            raise AttributeError(name)
-        section = getattr(self._cfg, name)
+        section = variant_section(self._cfg, name)
         keys = frozenset(key for key in type(section).model_fields if f"{name}.{key}" in self._allowed)
         return (
             section if keys == frozenset(type(section).model_fields) else SectionView(section, name, keys, self._stage)

@@ -21,7 +21,7 @@ import torch
 
 from fftool.artifacts.schema import COMMANDS, DLOW_LOG_FILE, DLOW_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
-from fftool.config import DLowConfig, PipelineConfig
+from fftool.config import DLowConfig, PipelineConfig, variant_section
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, load_model, sample, val_metrics
 from fftool.learning.dlow_model import Preset, build_sampler, preset, training_loss
@@ -177,7 +177,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The dlow settings, the CVAE it samples and the data that CVAE trained on."""
     variant = cfg.cvae.variant
-    unread = {"variants"} | (_FIXED if cfg.dlow.per_benchmark == "agentformer" else set())
+    unread = {"variants"} | (_FIXED if variant_section(cfg, "dlow").per_benchmark == "agentformer" else set())
     params = tuple(f"dlow.{key}" for key in DLowConfig.model_fields if key not in unread)
     return Reads(
         params=params,
