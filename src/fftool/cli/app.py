@@ -102,7 +102,11 @@ ConfigOption = Annotated[
 
 SetOption = Annotated[
     list[str] | None,
-    typer.Option("--set", help="Override a config value: section.key=value (repeatable)."),
+    typer.Option(
+        "--set",
+        help="Override a config value: section.key=value, or one variant's: "
+        "per_variant.<variant>.<section>.key=value (repeatable).",
+    ),
 ]
 
 
