@@ -430,8 +430,7 @@ def variant_section(cfg: PipelineConfig, name: str) -> _Section:
     if name not in SECTIONS:
         raise AttributeError(f"{name!r} is not a configuration section")
     section = getattr(cfg, name)
-    recipe = cfg.per_variant.get(cfg.cvae.variant)
-    overrides = getattr(recipe, name, None) if recipe is not None else None
+    overrides = getattr(cfg.per_variant.get(cfg.cvae.variant), name, None)
     return _with_overrides(section, overrides) if overrides else section
 
 
@@ -523,10 +522,10 @@ def _set(merged: dict[str, Any], key: str, value: Any, what: str) -> None:
             "per_variant.<variant>.<section>.key=value, e.g. per_variant.baseline.cvae.epochs=20"
         )
     target = merged
-    for depth, part in enumerate(parts[:-1], start=1):
+    for level, part in enumerate(parts[:-1], start=1):
         target = target.setdefault(part, {})
         if not isinstance(target, dict):
-            raise ConfigError(f"{what}: {'.'.join(parts[:depth])!r} is not a section")
+            raise ConfigError(f"{what}: {'.'.join(parts[:level])!r} is not a section")
     target[parts[-1]] = value
 
 
