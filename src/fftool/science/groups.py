@@ -9,14 +9,17 @@ equals that of separate per-frame runs (tests/test_groups.py checks it).
 from __future__ import annotations
 
 import numpy as np
-from sklearn.cluster import DBSCAN
 
 
 def cluster_frames(frame_key: np.ndarray, xy: np.ndarray, eps_m: float, min_samples: int) -> np.ndarray:
     """DBSCAN labels (N,) for points xy (N, 2) clustered separately per frame_key (N,); -1 is noise.
 
-    Labels are unique across frames (a cluster never spans two frames).
+    Labels are unique across frames (a cluster never spans two frames). scikit-learn is imported here,
+    not at module level: it pulls in scipy.stats (~2 s of CPU), which every other `fftool` command would
+    pay at start-up.
     """
+    from sklearn.cluster import DBSCAN
+
     if len(xy) == 0:
         return np.zeros(0, dtype=np.int64)
     _, frame_index = np.unique(frame_key, return_inverse=True)
