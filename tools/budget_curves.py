@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 from pathlib import Path
+
+from fftool.artifacts.store import Manifest
 
 
 def curve(folder: Path, metric: str) -> list[float]:
@@ -31,17 +32,17 @@ def main() -> None:
     parser.add_argument("--fraction", type=float, default=0.5, help="share of the epochs kept (0-1]")
     args = parser.parse_args()
     first = f"best of the first {args.fraction:.0%}"
-    print(f"| model | metric (val) | best of all epochs | {first} | cost | minutes saved |")
+    print(f"| model | metric (val) | best of all epochs | {first} | cost | thread-minutes saved |")
     print("|---|---|---:|---:|---:|---:|")
     saved_total = spent_total = 0.0
     for manifest_path in sorted(args.models.glob("*/*/manifest.json")):
-        manifest = json.loads(manifest_path.read_text())
-        kind, stats = manifest["kind"], manifest["stats"]
+        manifest = Manifest.from_json(manifest_path.read_text())
+        kind, stats = manifest.kind, manifest.stats
         metric = next(key.removeprefix("best_") for key in stats if key.startswith("best_val_"))
         values = curve(manifest_path.parent, metric)
         kept = max(1, math.ceil(len(values) * args.fraction))
         full, short = min(values), min(values[:kept])
-        seconds = float(stats.get("build_seconds") or 0.0)
+        seconds = manifest.thread_seconds()
         saved = seconds * (1 - kept / len(values))
         saved_total, spent_total = saved_total + saved, spent_total + seconds
         name = f"{stats['benchmark']}/{stats.get('variant') or 'goal-unet'}{'/dlow' if kind == 'dlow' else ''}"

@@ -2,24 +2,26 @@
 
     python tools/stage_times.py --root artifacts --benchmarks eth,hotel    # Markdown table on stdout
 
-Each manifest records `build_seconds` (the stage's own work) and, for trained models, the threads it ran on.
-The table sums them per benchmark (the thread-seconds a run costs) and, with `--jobs N`, gives the wall time
-a perfect N-way schedule would need (the sum divided by N, or the longest single build if that is larger).
+Each manifest records `build_seconds` (the stage's own work) and the torch threads it ran on. The table
+sums build seconds times threads per benchmark (the thread-seconds a run costs, `Manifest.thread_seconds`)
+and, with `--jobs N`, gives the wall time a perfect N-way schedule of one-thread jobs would need (the sum
+divided by N, or the longest single build if that is larger).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from collections import defaultdict
 from pathlib import Path
 
+from fftool.artifacts.store import Manifest
 
-def _label(manifest: dict) -> str:
-    stats, params = manifest["stats"], manifest["params"]
+
+def _label(manifest: Manifest) -> str:
+    stats, params = manifest.stats, manifest.params
     variant = stats.get("variant") or params.get("variant")
     protocol = stats.get("protocol")
-    parts = [manifest["kind"], variant if variant and manifest["kind"] != "goal" else None]
+    parts = [manifest.kind, variant if variant and manifest.kind != "goal" else None]
     parts.append(protocol if protocol not in (None, "none") else None)
     return " ".join(p for p in parts if p)
 
@@ -34,9 +36,9 @@ def main() -> None:
     rows: dict[str, dict[str, float]] = defaultdict(dict)
     shared = 0.0
     for path in sorted(args.root.glob("*/*/manifest.json")):
-        manifest = json.loads(path.read_text())
-        seconds = float(manifest["stats"].get("build_seconds") or 0.0)
-        benchmark = manifest["stats"].get("benchmark") or manifest["params"].get("benchmark")
+        manifest = Manifest.from_json(path.read_text())
+        seconds = manifest.thread_seconds()
+        benchmark = manifest.stats.get("benchmark") or manifest.params.get("benchmark")
         if benchmark is None:
             shared += seconds  # tracks, windows, forces, maps: once for every benchmark
         elif benchmark in chosen:
