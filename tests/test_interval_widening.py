@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-TOOL = Path(__file__).parents[1] / "tools" / "interval_widening.py"
-spec = importlib.util.spec_from_file_location("interval_widening", TOOL)
-widening = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(widening)
+from tests.tool_scripts import load_tool
+
+widening = load_tool("interval_widening")
 
 
 def write_report(folder: Path, width: dict[str, float]) -> Path:

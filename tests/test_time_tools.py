@@ -2,22 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
 from fftool.artifacts.store import Manifest
-
-TOOLS = Path(__file__).parents[1] / "tools"
-
-
-def load_tool(name: str):
-    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.tool_scripts import run_tool
 
 
 def manifest(kind: str, stats: dict, environment: dict | None = None) -> Manifest:
@@ -52,17 +42,13 @@ def store(tmp_path: Path) -> Path:
 
 
 def test_stage_times_sums_thread_minutes(store: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(sys, "argv", ["stage_times", "--root", str(store), "--benchmarks", "zara1,zara2"])
-    load_tool("stage_times").main()
-    out = capsys.readouterr().out
+    out = run_tool("stage_times", ["--root", str(store), "--benchmarks", "zara1,zara2"], monkeypatch, capsys)
     assert "| cvae baseline | 1.0 | 2.0 |" in out
     assert "3.0 thread-minutes" in out
 
 
 def test_budget_curves_counts_thread_minutes(store: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(sys, "argv", ["budget_curves", "--models", str(store), "--fraction", "0.5"])
-    load_tool("budget_curves").main()
-    out = capsys.readouterr().out
+    out = run_tool("budget_curves", ["--models", str(store), "--fraction", "0.5"], monkeypatch, capsys)
     # half the epochs kept: best 0.3 against 0.2 (+50 %), half of each model's thread-minutes saved
     assert "| zara2/baseline | val_min_ade@20_m | 0.200 | 0.300 | +0.100 (+50%) | 1.0 |" in out
     assert "3 thread-minutes trained; the smaller budget saves about 2." in out
