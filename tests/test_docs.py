@@ -73,3 +73,30 @@ def test_blocks_not_run_say_why(name: str) -> None:
         assert re.fullmatch(r'<!-- skip: next "[^"]{10,}" -->', marker), (
             f'{name}: {marker!r}: write <!-- skip: next "why this block is not run" -->'
         )
+
+
+GENERATED_DOCS = sorted(p for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md")] if "[[[cog" in p.read_text())
+
+
+def _cog_check(path: Path) -> int:
+    from cogapp import Cog
+
+    return Cog().main(["cog", "--check", "--diff", str(path)])
+
+
+@pytest.mark.parametrize("path", GENERATED_DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_generated_numbers_agree_with_their_data(path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every table between cog markers is what its CSV renders today: `python -m cogapp -r <page>` rewrites it."""
+    monkeypatch.chdir(ROOT)
+    assert _cog_check(path) == 0, f"{path.relative_to(ROOT)} disagrees with its data: python -m cogapp -r {path}"
+
+
+def test_a_number_edited_by_hand_is_caught(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(ROOT)
+    page = next(p for p in GENERATED_DOCS if p.name == "cpu_all.md")
+    text = page.read_text()
+    generated = text[text.index("]]] -->") : text.index("[[[end]]]")]  # the first generated table
+    number = re.search(r"\d\.\d{3}", generated).group()
+    edited = tmp_path / page.name
+    edited.write_text(text.replace(generated, generated.replace(number, f"{float(number) + 0.001:.3f}", 1)))
+    assert _cog_check(edited) != 0

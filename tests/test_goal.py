@@ -17,7 +17,7 @@ from fftool.cli import app
 from fftool.config import GoalConfig, GoalsConfig, load_config
 from fftool.errors import IntegrityError
 from fftool.learning import goal_model, training
-from fftool.learning.batches import SceneMaps
+from fftool.learning.batches import SceneMaps, load_agent_windows
 from fftool.learning.training import save_checkpoint
 from fftool.science.heatmaps import softargmax
 from fftool.stages import goal
@@ -135,8 +135,8 @@ def test_aligned_crops_turn_any_heading_to_plus_col() -> None:
     x, _, _ = goal_model.goal_inputs(paths, torch.zeros(2, dtype=torch.long), maps, cfg, zeros, zeros.bool(), 12)
     assert x.shape == (2, 8 + 1 + 2, 16, 16)
     torch.testing.assert_close(x[0], x[1], atol=1e-5, rtol=0)  # the two headings give one picture
-    cv_cell = softargmax(torch.log(x[:, 8].clamp_min(1e-30)))  # 12 · 0.1 m = 2.4 cells ahead of 7.5
-    torch.testing.assert_close(cv_cell, torch.tensor([[9.9, 7.5], [9.9, 7.5]]), atol=1e-3, rtol=0)
+    cv_cell = softargmax(torch.log(x[:, 8].clamp_min(1e-30)))  # 12 · 0.1 m = 2.4 cells ahead of cell 8
+    torch.testing.assert_close(cv_cell, torch.tensor([[10.4, 8.0], [10.4, 8.0]]), atol=1e-3, rtol=0)
 
 
 @pytest.mark.parametrize("damage", ["garbage", "truncated"])
@@ -165,10 +165,11 @@ def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: st
         "state_dict": goal_model.build_model(TINY, 14).state_dict(),
         "in_channels": 14,
         "config": TINY.model_dump(),
+        "sampling": GoalsConfig(mode_radius_cells=1).model_dump(),
     }
     save_checkpoint(path, saved)
     artifact = type("A", (), {"file": lambda self, name: tmp_path / name})()
-    assert goal_model.load_model(artifact, torch.device("cpu"))[1] == TINY
+    assert goal_model.load_model(artifact, torch.device("cpu"))[1:] == (TINY, GoalsConfig(mode_radius_cells=1))
     if tamper == "garbage":
         path.write_bytes(b"garbage!" + path.read_bytes()[8:])
     elif tamper == "pickled function":
@@ -181,3 +182,39 @@ def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: st
     assert message.startswith(f"{path}: not a valid fftool checkpoint, ")
     assert message.endswith("; rebuild it with `fftool train-goal --force`")
     assert "weights_only" not in message and "\n" not in message
+
+
+def test_supervised_steps_are_evenly_spaced_and_end_at_the_goal() -> None:
+    assert goal_model.supervised_steps(TINY, 12) == [12]
+    assert goal_model.supervised_steps(TINY.model_copy(update={"supervised_steps": 3}), 12) == [4, 8, 12]
+    assert goal_model.supervised_steps(TINY.model_copy(update={"supervised_steps": 12}), 12) == list(range(1, 13))
+
+
+def test_several_output_maps_a_sharp_target_and_time_reversal_train_and_sample(inputs: dict, tmp_path: Path) -> None:
+    cfg = TINY.model_copy(update={"epochs": 2, "supervised_steps": 3, "target_sigma_cells": 0.5, "time_reversal": 0.5})
+    stats = _train(inputs, tmp_path, "multi", cfg)
+    assert np.isfinite([row["train_loss"] for row in stats["log"]]).all()
+    artifact = type("A", (), {"file": lambda self, name: tmp_path / "multi" / name})()
+    model, loaded, sampling = goal_model.load_model(artifact, torch.device("cpu"))
+    assert loaded == cfg and sampling.k == SAMPLING.k and model.head.out_channels == 3
+
+
+@pytest.mark.parametrize("reversal", [0.0, 1.0])
+def test_time_reversal_makes_the_first_observed_position_the_goal(
+    inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, reversal: float
+) -> None:
+    """Played backwards, a window's goal is where it started: every supervised goal is a first position."""
+    targets: list[torch.Tensor] = []
+    original = goal.world_to_cells
+
+    def spy(points: torch.Tensor, *args: object) -> torch.Tensor:
+        targets.append(points[:, -1].clone())
+        return original(points, *args)
+
+    monkeypatch.setattr(goal, "world_to_cells", spy)
+    _train(inputs, tmp_path, f"reversal{reversal}", TINY.model_copy(update={"epochs": 1, "time_reversal": reversal}))
+    windows = torch.as_tensor(load_agent_windows(inputs["windows"], "zara1", "train").xy, dtype=torch.float32)
+    seen = torch.cat(targets)
+    end = 0 if reversal else -1
+    distance = torch.cdist(seen, windows[:, end], compute_mode="donot_use_mm_for_euclid_dist").min(1).values
+    assert seen.shape[0] > 0 and distance.max() < 1e-4

@@ -10,6 +10,7 @@ import torch
 from fftool.models import GoalUNet
 from fftool.science.heatmaps import (
     cells_to_world,
+    refine_mode,
     render,
     rotation,
     sample_goals,
@@ -27,8 +28,20 @@ def test_crop_transform_round_trips_and_centres() -> None:
     cells = world_to_cells(points, center, R, 0.5, 48)
     torch.testing.assert_close(cells_to_world(cells, center, R, 0.5, 48), points)
     middle = world_to_cells(center[:, None], center, R, 0.5, 48)
-    torch.testing.assert_close(middle, torch.full_like(middle, 23.5))  # the centre of a 48-cell crop
+    torch.testing.assert_close(middle, torch.full_like(middle, 24.0))  # a cell centre, not a corner (23.5)
     torch.testing.assert_close(R @ R.transpose(1, 2), torch.eye(2).expand(5, 2, 2))
+
+
+@pytest.mark.parametrize("size", [48, 47])
+def test_a_standing_pedestrians_ideal_map_gives_its_goal_exactly(size: int) -> None:
+    """The crop centre is a cell centre: the ideal map of a pedestrian who stays put peaks on one cell, so
+    every refinement of the mode returns the last observed position (on a cell corner it was 0.12 m off)."""
+    center, R = torch.tensor([[3.3, -1.7]]), rotation(torch.tensor([0.4]), torch.tensor([0]))
+    cells = world_to_cells(center[:, None], center, R, 0.5, size)
+    logits = torch.logit(render(cells, size, 1.0)[:, 0].clamp(1e-6, 1 - 1e-6))
+    for radius in (0, 1, 2):
+        mode = sample_goals(logits, 1, mode_radius=radius)
+        torch.testing.assert_close(cells_to_world(mode, center, R, 0.5, size), center[:, None], atol=1e-5, rtol=0)
 
 
 def test_heatmap_peak_is_at_the_right_cell() -> None:
@@ -44,6 +57,16 @@ def test_heatmap_peak_is_at_the_right_cell() -> None:
 def test_softargmax_recovers_a_planted_peak(goal: tuple[float, float]) -> None:
     logits = torch.log(render(torch.tensor([[goal]]), 48, 1.0)[:, 0])  # a Gaussian peak at a sub-cell position
     torch.testing.assert_close(softargmax(logits), torch.tensor([goal]), atol=0.05, rtol=0)
+
+
+@pytest.mark.parametrize("goal", [(10.3, 20.7), (2.2, 40.4), (24.5, 24.5)])
+def test_the_local_softargmax_mode_finds_a_sub_cell_peak_that_the_argmax_misses(goal: tuple[float, float]) -> None:
+    truth = torch.tensor([goal])
+    logits = torch.logit(render(truth[:, None], 48, 1.0)[:, 0].clamp(1e-6, 1 - 1e-6))
+    logits[0, 5, 40] += 2.0  # a second, smaller bump far away must not pull the mode toward it
+    argmax_error = torch.linalg.vector_norm(refine_mode(logits, 0) - truth)
+    local_error = torch.linalg.vector_norm(refine_mode(logits, 2) - truth)
+    assert local_error < 0.12 and local_error < argmax_error + 1e-6
 
 
 def test_scene_sampling_follows_the_world_grid() -> None:
@@ -79,6 +102,7 @@ def test_sampling_gives_k_distinct_goals_with_the_mode_first() -> None:
 def test_unet_output_matches_any_input_size(size: tuple[int, int]) -> None:
     net = GoalUNet(in_channels=5, widths=(4, 8, 8, 16))
     out = net(torch.rand(2, 5, *size))
-    assert out.shape == (2, *size)
+    assert out.shape == (2, 1, *size)
+    assert GoalUNet(in_channels=5, widths=(4, 8), out_channels=3)(torch.rand(2, 5, *size)).shape == (2, 3, *size)
     out.sum().backward()
     assert all(p.grad is not None for p in net.parameters())

@@ -190,10 +190,12 @@ def load(
 
 @dataclass(frozen=True)
 class GoalSampler:
-    """A trained goal U-Net that draws K goals per observed path, without a scene map (its map channels are 0)."""
+    """A trained goal U-Net that draws K goals per observed path, without a scene map (its map channels are 0),
+    the way its best epoch was chosen (`sampling`, K aside)."""
 
     net: torch.nn.Module
     config: GoalConfig
+    sampling: GoalsConfig
     in_channels: int
 
     def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
@@ -204,7 +206,14 @@ class GoalSampler:
         obs = torch.as_tensor(past, dtype=torch.float32, device=device)
         scene = torch.zeros(len(past), dtype=torch.long, device=device)
         goals = goal_model.predict_goals(
-            self.net, obs, scene, blank, cfg, GoalsConfig(k=k), generator(seed, device), pred_len
+            self.net,
+            obs,
+            scene,
+            blank,
+            cfg,
+            self.sampling.model_copy(update={"k": k}),
+            generator(seed, device),
+            pred_len,
         )
         return goals.cpu().numpy()
 
@@ -218,9 +227,9 @@ def load_goal_sampler(ref: str | Path, *, root: Path | None = None, device: str 
             raise UsageError(f"{ref}: a variant that reads no goal, shipped without a goal U-Net")
     else:
         _, artifact = find_artifact(ref, "goal", root)
-    net, cfg = goal_model.load_model(artifact, devices.resolve(device))
+    net, cfg, sampling = goal_model.load_model(artifact, devices.resolve(device))
     first = next(module for module in net.modules() if isinstance(module, torch.nn.Conv2d))
-    return GoalSampler(net, cfg, first.in_channels)
+    return GoalSampler(net, cfg, sampling, first.in_channels)
 
 
 def predict_tracks(

@@ -154,7 +154,11 @@ class GoalConfig(_Section):
     # Input crop around the last observed position, in cells of `resolution_m`.
     resolution_m: float = Field(0.5, gt=0)
     crop_cells: int = Field(48, gt=0)  # 48 × 0.5 m = ±12 m: covers the largest 12-step displacement
-    heatmap_sigma_cells: float = Field(1.0, gt=0)  # Gaussian of each observed position and of the target
+    heatmap_sigma_cells: float = Field(1.0, gt=0)  # Gaussian of each observed input position
+    target_sigma_cells: float = Field(1.0, gt=0)  # Gaussian of the BCE target at the true future position
+    # Output maps: the goal (the last future step) and, with n > 1, n - 1 earlier steps evenly spaced before
+    # it, each supervised by its own BCE term (Goal-SAR supervises all 12); goals are drawn from the last.
+    supervised_steps: int = Field(1, gt=0)
     # U-Net: encoder widths (one pooling between consecutive entries), decoder mirrors them.
     widths: tuple[Annotated[int, Field(gt=0)], ...] = Field((32, 32, 64, 64, 64), min_length=2)
     # Loss = BCE + MSE(softargmax goal, true goal) in cells, with `loss_lambda` on one of them.
@@ -179,6 +183,8 @@ class GoalConfig(_Section):
     train_stride: int = Field(5, gt=0)
     max_train: int = Field(0, ge=0)  # 0 = all
     augment: bool = True  # random rotation in [0, 2π) and mirror, applied to map and positions alike
+    # Share of training windows played backwards (the goal becomes the first observed position; Goal-SAR: 0.5).
+    time_reversal: float = Field(0.0, ge=0, le=1)
     val_max: int = Field(1000, ge=0)  # validation agent-windows per epoch (0 = all)
     seed: int = 0
 
@@ -188,9 +194,10 @@ class GoalConfig(_Section):
         multiple = 2 ** (len(self.widths) - 1)
         if self.crop_cells % multiple:
             raise _expected("crop_cells", f"a multiple of {multiple} (2 ** (len(widths) - 1))", self.crop_cells)
-        if 2 * math.pi * self.heatmap_sigma_cells**2 >= self.crop_cells**2:  # the target would fill the crop
-            limit = self.crop_cells / math.sqrt(2 * math.pi)
-            raise _expected("heatmap_sigma_cells", f"< crop_cells / sqrt(2π) = {limit:.4g}", self.heatmap_sigma_cells)
+        limit = self.crop_cells / math.sqrt(2 * math.pi)
+        for key in ("heatmap_sigma_cells", "target_sigma_cells"):  # a Gaussian that would fill the crop
+            if getattr(self, key) >= limit:
+                raise _expected(key, f"< crop_cells / sqrt(2π) = {limit:.4g}", getattr(self, key))
         return self
 
 
@@ -216,6 +223,8 @@ class GoalsConfig(_ConstantVelocity):
     threshold: float = Field(0.05, ge=0, lt=1)  # cells below threshold · max P are dropped (Goal-SAR's ρ)
     samples: int = Field(2000, gt=0)  # draws per agent clustered by k-means (Goal-SAR: 10,000)
     kmeans_iterations: int = Field(20, gt=0)
+    # Goal 1: the map's argmax cell (0, Goal-SAR), or the P-weighted mean of the (2r+1)² cells around it (r).
+    mode_radius_cells: int = Field(0, ge=0)
     parts: tuple[Part, ...] = Field(("val", "test"), min_length=1)
     seed: int = 0
 
@@ -318,9 +327,10 @@ class EvaluateConfig(_ConstantVelocity):
 
     # cvae: the trained model of the `cvae` section's variant; cv: the constant-velocity reference.
     predictor: Literal["cvae", "cv"] = "cvae"
-    # Where goal variants get their goal: paper (sampled goal closest to the truth), fair (sample k
-    # uses goal k), oracle (the true end point). The baseline and cv read no goal.
-    protocol: Literal["paper", "fair", "oracle"] = "paper"
+    # Where goal variants get their goal: fair (sample k decodes sampled goal k: no true future read, what
+    # predict and the API do), paper (the paper's pick: the sampled goal nearest the true end point), oracle
+    # (the true end point). The baseline and cv read no goal.
+    protocol: Literal["paper", "fair", "oracle"] = "fair"
     k: int = Field(20, gt=0)
     part: Literal["test", "val"] = "test"
     collision_threshold_m: float = Field(0.1, gt=0)  # γ (paper); pairs closer than this collide

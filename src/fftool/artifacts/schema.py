@@ -20,7 +20,7 @@ VERSIONS: Final[dict[str, int]] = {
     "windows": 1,
     "forces": 3,
     "maps": 1,
-    "goal": 1,
+    "goal": 2,
     "goals": 1,
     "cvae": 2,
     "dlow": 1,

@@ -288,8 +288,9 @@ ProtocolOption = Annotated[
     str | None,
     _optional(
         "--protocol",
-        "Goal protocol of goal variants: paper (sampled goal closest to the truth), fair (sample k uses goal k), "
-        "oracle (true goal). Default: evaluate.protocol of the config (paper).",
+        "Goal protocol of goal variants: fair (sample k decodes sampled goal k; reads no true future), paper (the "
+        "paper's pick: the sampled goal nearest the true end point), oracle (true goal). Default: evaluate.protocol "
+        "of the config (fair).",
         check_protocol,
     ),
 ]

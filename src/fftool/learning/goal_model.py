@@ -21,7 +21,6 @@ from fftool.models import GoalUNet
 from fftool.science.heatmaps import (
     cells_to_world,
     constant_velocity_cells,
-    gaussian_target,
     render,
     rotation,
     sample_goals,
@@ -53,12 +52,19 @@ def goal_inputs(
     return torch.cat([heat, crop.to(heat.dtype)], dim=1), center, R
 
 
-def goal_loss(logits: Tensor, goal_cells: Tensor, cfg: GoalConfig) -> tuple[Tensor, Tensor, Tensor]:
-    """total, BCE (mean over cells) and MSE (cells², softargmax vs true goal) with λ on one of them."""
-    target = gaussian_target(goal_cells, cfg.crop_cells, cfg.heatmap_sigma_cells)
+def supervised_steps(cfg: GoalConfig, pred_len: int) -> list[int]:
+    """The future steps (1 … pred_len) the U-Net's output maps stand for, evenly spaced, the goal's last."""
+    n = cfg.supervised_steps
+    return [round(pred_len * (i + 1) / n) for i in range(n)]
+
+
+def goal_loss(logits: Tensor, future_cells: Tensor, cfg: GoalConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """total, BCE (mean over cells and output maps) and MSE (cells², softargmax of the goal map vs the true goal)
+    with λ on one of them. logits (B, n, S, S), future_cells (B, n, 2): the supervised steps' true cells."""
+    target = render(future_cells, cfg.crop_cells, cfg.target_sigma_cells)
     bce = F.binary_cross_entropy_with_logits(logits, target)
-    reachable = goal_cells.clamp(0, cfg.crop_cells - 1)  # a goal outside the crop pulls to its border
-    mse = ((softargmax(logits) - reachable) ** 2).sum(-1).mean()
+    reachable = future_cells[:, -1].clamp(0, cfg.crop_cells - 1)  # a goal outside the crop pulls to its border
+    mse = ((softargmax(logits[:, -1]) - reachable) ** 2).sum(-1).mean()
     total = cfg.loss_lambda * bce + mse if cfg.lambda_scales == "bce" else bce + cfg.loss_lambda * mse
     return total, bce, mse
 
@@ -66,9 +72,12 @@ def goal_loss(logits: Tensor, goal_cells: Tensor, cfg: GoalConfig) -> tuple[Tens
 def build_model(cfg: GoalConfig, in_channels: int) -> GoalUNet:
     multiple = 2 ** (len(cfg.widths) - 1)
     assert cfg.crop_cells % multiple == 0, f"crop_cells {cfg.crop_cells} must be divisible by {multiple}"
-    target_share = 2 * math.pi * cfg.heatmap_sigma_cells**2 / cfg.crop_cells**2  # mass of the target map
+    target_share = 2 * math.pi * cfg.target_sigma_cells**2 / cfg.crop_cells**2  # mass of the target map
     return GoalUNet(
-        in_channels=in_channels, widths=tuple(cfg.widths), prior_logit=math.log(target_share / (1 - target_share))
+        in_channels=in_channels,
+        widths=tuple(cfg.widths),
+        prior_logit=math.log(target_share / (1 - target_share)),
+        out_channels=cfg.supervised_steps,
     )
 
 
@@ -86,7 +95,7 @@ def predict_goals(
     """(B, K, 2) world goals, the map's mode first, for observed paths (B, 8, 2)."""
     zeros = torch.zeros(len(obs), device=obs.device, dtype=obs.dtype)
     x, center, R = goal_inputs(obs, scene, maps, cfg, zeros, zeros.bool(), pred_len)
-    logits = model(x)
+    logits = model(x)[:, -1]  # the goal's map
     cells = sample_goals(
         logits,
         goals_cfg.k,
@@ -95,6 +104,7 @@ def predict_goals(
         threshold=goals_cfg.threshold,
         samples=goals_cfg.samples,
         iterations=goals_cfg.kmeans_iterations,
+        mode_radius=goals_cfg.mode_radius_cells,
         generator=gen,
     )
     return cells_to_world(cells, center, R, cfg.resolution_m, cfg.crop_cells)
@@ -146,10 +156,11 @@ def evaluate(
     return float(torch.cat(fde_k).mean()), float(torch.cat(fde_1).mean())
 
 
-def load_model(goal: Artifact, device: torch.device) -> tuple[GoalUNet, GoalConfig]:
-    """Rebuild the trained U-Net from its artifact alone (a damaged model file is an IntegrityError)."""
+def load_model(goal: Artifact, device: torch.device) -> tuple[GoalUNet, GoalConfig, GoalsConfig]:
+    """Rebuild the trained U-Net from its artifact alone (a damaged model file is an IntegrityError), with the
+    goal sampling its best epoch was chosen under."""
     with model_file(goal.file(GOAL_MODEL_FILE), device, "fftool train-goal --force") as saved:
         cfg = GoalConfig.model_validate(saved["config"])
         model = build_model(cfg, saved["in_channels"]).to(device)
         model.load_state_dict(saved["state_dict"])
-        return model.eval(), cfg
+        return model.eval(), cfg, GoalsConfig.model_validate(saved["sampling"])

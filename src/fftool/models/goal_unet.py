@@ -1,7 +1,8 @@
 """The goal estimator's U-Net (Goal-SAR layout): heat maps + semantic channels -> goal logits.
 
 Encoder: DoubleConv blocks of the given widths with a 2×2 max-pool between them; decoder: bilinear ×2,
-3×3 conv, concatenate the skip, DoubleConv, mirroring the encoder; head: 1×1 conv to one logit map.
+3×3 conv, concatenate the skip, DoubleConv, mirroring the encoder; head: 1×1 conv to one logit map per
+supervised future step (the goal's last).
 No BatchNorm (Goal-SAR). Inputs of any size are padded to a multiple of 2^depth and the output is
 cropped back, so skips always align (Goal-SAR's centre-crop misalignment is avoided).
 """
@@ -23,10 +24,15 @@ def _double_conv(c_in: int, c_out: int) -> nn.Sequential:
 
 
 class GoalUNet(nn.Module):
-    """(B, C_in, H, W) -> (B, H, W) goal logits."""
+    """(B, C_in, H, W) -> (B, out_channels, H, W) logit maps of future positions, the goal's last."""
 
     def __init__(
-        self, *, in_channels: int, widths: tuple[int, ...] = (32, 32, 64, 64, 64), prior_logit: float = 0.0
+        self,
+        *,
+        in_channels: int,
+        widths: tuple[int, ...] = (32, 32, 64, 64, 64),
+        prior_logit: float = 0.0,
+        out_channels: int = 1,
     ) -> None:
         super().__init__()
         assert len(widths) >= 2, f"a U-Net needs at least two levels, got widths {widths}"
@@ -41,7 +47,7 @@ class GoalUNet(nn.Module):
             self.up_convs.append(nn.Conv2d(previous, skip_width, 3, padding=1))
             self.decoder.append(_double_conv(2 * skip_width, skip_width))
             previous = skip_width
-        self.head = nn.Conv2d(previous, 1, 1)
+        self.head = nn.Conv2d(previous, out_channels, 1)
         # Start every cell at the target's prior probability instead of 0.5, so the first steps are spent
         # on finding the goal rather than on pushing thousands of background cells down.
         nn.init.constant_(self.head.bias, prior_logit)
@@ -58,4 +64,4 @@ class GoalUNet(nn.Module):
         for up_conv, block in zip(self.up_convs, self.decoder):
             x = up_conv(F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False))
             x = block(torch.cat([x, skips.pop()], dim=1))
-        return self.head(x)[:, 0, :H, :W]  # (B, H, W)
+        return self.head(x)[:, :, :H, :W]  # (B, out_channels, H, W)

@@ -245,6 +245,9 @@ def write_report(
         tables.write(built, partial, _preamble(command, seconds, results), _definitions())
         (partial / REPORT_MARKER).write_text(f"written by fftool {__version__}; the next report replaces this folder\n")
         pd.DataFrame(rows).to_csv(partial / "results.csv", index=False)
+        goal_module = goal_module_rows(cfg, store, results)
+        if goal_module:
+            pd.DataFrame(goal_module).to_csv(partial / "goal_fde.csv", index=False)
         title = f"{profile}: minFDE and NC per benchmark ({cfg.evaluate.protocol} protocol), {grid.level:.0%} intervals"
         drawn = [score_plots.scores_figure(grid, partial / "scores.png", title), *(draw(partial) if draw else [])]
         with (partial / "report.md").open("a") as report:
@@ -260,6 +263,30 @@ def write_report(
     finally:
         shutil.rmtree(partial, ignore_errors=True)
     return out_dir / "report.md"
+
+
+def goal_module_rows(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The goal module alone, per benchmark whose goal variants the report holds: goal-FDE@K and FDE@1 of its
+    sampled goals and of constant velocity on the val and test parts (the goals artifact's manifest). Only for
+    a grid of one seed: each grid seed has goal modules of its own."""
+    if grid_seeds(cfg) != [None]:
+        return []
+    rows = []
+    for benchmark in dict.fromkeys(r["benchmark"] for r in results if r.get("protocol") not in (None, "none")):
+        artifact = pipeline.run(cfg, store, ["goals"], benchmark=benchmark, upstream=False)["goals"]
+        k, parts = int(artifact.manifest.stats["k"]), artifact.manifest.stats["parts"]
+        row: dict[str, Any] = {"benchmark": benchmark, "k": k, "goals": artifact.id}
+        for part in ("val", "test"):
+            stats = parts.get(part, {})
+            row |= {
+                f"{part}_goal_fde@k": stats.get(f"goal_fde@{k}_m"),
+                f"{part}_goal_fde@1": stats.get("goal_fde@1_m"),
+                f"{part}_cv_fde@k": stats.get(f"cv_fde@{k}_m"),
+                f"{part}_cv_fde@1": stats.get("cv_fde@1_m"),
+                f"{part}_agent_windows": stats.get("agent_windows"),
+            }
+        rows.append(row)
+    return rows
 
 
 def _preamble(command: str, seconds: float, results: list[dict[str, Any]]) -> str:

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from fftool.artifacts.store import Artifact
 from fftool.dataset.scenes import BENCHMARKS
+from fftool.paper import reads_goal
 
 
 def _benchmark_part_table(title: str, columns: tuple[str, ...], rows: list[tuple[str, str, list[str]]]) -> Table:
@@ -267,17 +268,20 @@ def _best_row(manifest: Any) -> dict[str, Any]:
 
 
 def zoo_table(models: list[Any], orphaned: set[str]) -> Table:
-    """The shipped models: name, kind, validation numbers of the best epoch, size, current or orphaned."""
+    """The shipped models: name, kind, validation numbers of the best epoch (labelled "true goals" where the CVAE
+    was validated with each window's true end point as its goal: not what a user gets), size, status."""
     table = Table(title="shipped models (models/<profile>/)", title_justify="left")
     for name in ("name", "kind", "id", "validation (best epoch)", "epochs", "size", "status"):
-        table.add_column(name, justify="right" if name in ("epochs", "size") else "left")
+        table.add_column(name, justify="right" if name in ("epochs", "size") else "left", no_wrap=name != "id")
     for model in models:
         manifest = model.artifact.manifest
         row = _best_row(manifest)
         ade = next((v for k, v in row.items() if k.startswith("val_min_ade")), None)
         fde = next((v for k, v in row.items() if k.startswith("val_min_fde")), None)
         if ade is not None and fde is not None:
-            shown = f"minADE/minFDE {ade:.3f} / {fde:.3f}"
+            shown = f"minADE/FDE {ade:.3f}/{fde:.3f}"
+            if model.variant is not None and reads_goal(model.variant):
+                shown += " (true goals)"
         else:
             best = next(
                 ((k, v) for k, v in manifest.stats.items() if k.startswith("best_") and k != "best_epoch"), None
@@ -289,7 +293,8 @@ def zoo_table(models: list[Any], orphaned: set[str]) -> Table:
         table.add_row(model.name, model.kind, model.artifact.id, shown, epochs, f"{size / 1e6:.2f} MB", status)
     total = sum(sum(f["bytes"] for f in m.artifact.manifest.files.values()) for m in models)
     table.caption = (
-        f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint"
+        f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint; "
+        "(true goals): validated with the true end point as the goal, which no prediction has"
         if models
         else "no shipped models"
     )

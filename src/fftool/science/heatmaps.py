@@ -1,9 +1,11 @@
 """Agent-centric rasters for the goal estimator, in batched torch.
 
-A crop is S × S cells of `res` metres centred on the pedestrian's last observed position c and turned
-by an orthonormal matrix R (a rotation, possibly with a mirror): local offset d = Rᵀ (p − c), cell
-(col, row) = d / res + S/2 − 1/2. Heat maps are rendered analytically at the transformed points and
-the scene map is resampled on the same grid (grid_sample), so augmentation moves both together.
+A crop is S × S cells of `res` metres around the pedestrian's last observed position c, turned by an
+orthonormal matrix R (a rotation, possibly with a mirror): local offset d = Rᵀ (p − c), cell
+(col, row) = d / res + ⌊S/2⌋. Cell centres are the integers, so c sits at the centre of cell ⌊S/2⌋ (a
+standing pedestrian's goal is one cell, not the corner where four meet). Heat maps are rendered
+analytically at the transformed points and the scene map is resampled on the same grid (grid_sample), so
+augmentation moves both together.
 """
 
 from __future__ import annotations
@@ -24,12 +26,12 @@ def rotation(angle: Tensor, mirror: Tensor) -> Tensor:
 def world_to_cells(points: Tensor, center: Tensor, R: Tensor, res: float, size: int) -> Tensor:
     """(B, P, 2) world points -> continuous crop cells (col, row)."""
     local = torch.einsum("bji,bpj->bpi", R, points - center[:, None, :])  # Rᵀ (p - c)
-    return local / res + size / 2 - 0.5
+    return local / res + size // 2
 
 
 def cells_to_world(cells: Tensor, center: Tensor, R: Tensor, res: float, size: int) -> Tensor:
     """Inverse of `world_to_cells`: (B, P, 2) cells -> world metres."""
-    local = (cells - size / 2 + 0.5) * res
+    local = (cells - size // 2) * res
     return torch.einsum("bij,bpj->bpi", R, local) + center[:, None, :]
 
 
@@ -81,10 +83,12 @@ def sample_goals(
     threshold: float = 0.05,
     samples: int = 2000,
     iterations: int = 20,
+    mode_radius: int = 0,
     generator: torch.Generator | None = None,
 ) -> Tensor:
     """(B, S, S) logits -> (B, k, 2) goal cells (col, row); goal 0 is the map's mode.
 
+    The mode is the argmax cell, refined to sub-cell precision by `refine_mode` when mode_radius > 0.
     P = sigmoid(logits / T), cells below threshold · max P dropped. "ttst" (Goal-SAR's test-time
     sampling trick): the remaining k - 1 goals are k-means centres of `samples` draws from P;
     "multinomial": k - 1 plain draws. Draws are jittered uniformly inside their cell, so goals are
@@ -92,8 +96,7 @@ def sample_goals(
     """
     B, H, W = logits.shape
     flat = logits.reshape(B, -1)
-    mode = flat.argmax(-1)
-    mode_cells = torch.stack([mode % W, mode // W], -1).to(logits.dtype)[:, None, :]
+    mode_cells = refine_mode(logits, mode_radius, temperature)[:, None, :]
     if k == 1:
         return mode_cells
     p = torch.sigmoid(flat / temperature)
@@ -105,6 +108,27 @@ def sample_goals(
     if method == "ttst":
         draws = _kmeans(draws, k - 1, iterations)
     return torch.cat([mode_cells, draws], 1)
+
+
+def refine_mode(logits: Tensor, radius: int, temperature: float = 1.0) -> Tensor:
+    """(B, S, S) logits -> (B, 2) mode (col, row): the argmax cell, or with radius r > 0 the mean of the cells
+    within r of it (a (2r+1)² window) weighted by P = sigmoid(logits / T), Y-net's softargmax made local so a
+    second bump elsewhere in the map cannot pull the mode between the two."""
+    B, H, W = logits.shape
+    best = logits.reshape(B, -1).argmax(-1)
+    row, col = best // W, best % W
+    if radius == 0:
+        return torch.stack([col, row], -1).to(logits.dtype)
+    offsets = torch.arange(-radius, radius + 1, device=logits.device)
+    rows, cols = row[:, None] + offsets, col[:, None] + offsets  # (B, n)
+    inside = ((rows >= 0) & (rows < H))[:, :, None] & ((cols >= 0) & (cols < W))[:, None, :]  # (B, n, n)
+    batch = torch.arange(B, device=logits.device)[:, None, None]
+    window = logits[batch, rows.clamp(0, H - 1)[:, :, None], cols.clamp(0, W - 1)[:, None, :]]
+    weight = torch.sigmoid(window / temperature) * inside
+    total = weight.sum((1, 2))
+    mean_row = (weight.sum(2) * rows.to(weight.dtype)).sum(1) / total
+    mean_col = (weight.sum(1) * cols.to(weight.dtype)).sum(1) / total
+    return torch.stack([mean_col, mean_row], -1)
 
 
 def _kmeans(points: Tensor, k: int, iterations: int) -> Tensor:
@@ -124,8 +148,3 @@ def _kmeans(points: Tensor, k: int, iterations: int) -> Tensor:
 def constant_velocity_cells(obs_cells: Tensor, pred_len: int) -> Tensor:
     """(B, T, 2) observed cells -> (B, 2): the last step's velocity extrapolated pred_len steps."""
     return obs_cells[:, -1] + pred_len * (obs_cells[:, -1] - obs_cells[:, -2])
-
-
-def gaussian_target(cells: Tensor, size: int, sigma: float) -> Tensor:
-    """(B, 2) goal cells -> (B, S, S) BCE target with peak 1."""
-    return render(cells[:, None, :], size, sigma)[:, 0]

@@ -19,9 +19,17 @@ import torch
 from fftool.artifacts.schema import COMMANDS, GOAL_LOG_FILE, GOAL_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import GoalConfig, GoalsConfig, PipelineConfig
+from fftool.errors import UsageError
 from fftool.learning import distributed
 from fftool.learning.batches import AgentWindows, SceneMaps, load_agent_windows, load_scene_maps
-from fftool.learning.goal_model import build_model, evaluate, goal_inputs, goal_loss, input_channels
+from fftool.learning.goal_model import (
+    build_model,
+    evaluate,
+    goal_inputs,
+    goal_loss,
+    input_channels,
+    supervised_steps,
+)
 from fftool.learning.training import (
     epoch_seed,
     fit,
@@ -41,7 +49,8 @@ NAME: Final = "goal"
 # Validation picks the best epoch by goal-FDE@K of goals drawn as `sample-goals` draws them: these settings
 # of the goals section steer which weights are kept, so they are part of the goal model's fingerprint.
 VALIDATION_SAMPLING: Final = tuple(
-    f"goals.{key}" for key in ("k", "method", "temperature", "threshold", "samples", "kmeans_iterations")
+    f"goals.{key}"
+    for key in ("k", "method", "temperature", "threshold", "samples", "kmeans_iterations", "mode_radius_cells")
 )
 
 
@@ -64,9 +73,11 @@ class _Trainer:
     per_epoch: int  # training windows per epoch
     device: torch.device
     net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
+    future_index: list[int] = field(init=False)  # the window rows of the supervised future steps
 
     def __post_init__(self) -> None:
         self.net = distributed.wrap(self.model, self.device)
+        self.future_index = [self.obs_len + step - 1 for step in supervised_steps(self.cfg, self.pred_len)]
 
     def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
         """One epoch over `per_epoch` windows drawn by (seed, epoch); the mean loss terms. (No column adds up
@@ -84,19 +95,24 @@ class _Trainer:
             index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
             angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
             mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
+            reverse = torch.rand(len(index), generator=gen, dtype=torch.float32) < cfg.time_reversal
             if distributed.active():
                 mine, share = distributed.shard(index.numpy())
                 keep = torch.as_tensor(mine)
-                index, angle, mirror, weight = index[keep], angle[keep], mirror[keep], share / distributed.world_size()
-            xy = self.train_xy[index].to(device)
+                index, angle, mirror, reverse = index[keep], angle[keep], mirror[keep], reverse[keep]
+                weight = share / distributed.world_size()
+            xy = self.train_xy[index]
+            xy = torch.where(reverse[:, None, None], xy.flip(1), xy).to(device)
             if not cfg.augment or cfg.align_heading:
                 angle = torch.zeros_like(angle)
             if not cfg.augment:
                 mirror = torch.zeros_like(mirror)
             past, scene = xy[:, : self.obs_len], self.train_scene[index].to(device)
             x, center, R = goal_inputs(past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len)
-            goal_cells = world_to_cells(xy[:, -1:], center, R, cfg.resolution_m, cfg.crop_cells)[:, 0]
-            loss, bce, mse = goal_loss(self.net(x), goal_cells, cfg)
+            future = xy[:, self.future_index]  # (b, supervised steps, 2), the goal last
+            loss, bce, mse = goal_loss(
+                self.net(x), world_to_cells(future, center, R, cfg.resolution_m, cfg.crop_cells), cfg
+            )
             factor = lr_factor(cfg.schedule, epoch * batches + b, cfg.epochs * batches, cfg.warmup_fraction)
             total = loss * share if distributed.active() else loss
             optimizer_step(self.model, self.optimizer, total, cfg.lr * factor, cfg.grad_clip)
@@ -131,6 +147,10 @@ def _trainer(
     seed_all(cfg.seed)
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
+    if cfg.supervised_steps > pred_len:
+        raise UsageError(
+            f"goal.supervised_steps: expected at most the {pred_len} predicted steps, got {cfg.supervised_steps}"
+        )
     train = load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
     val = load_agent_windows(windows, benchmark, "val")
     if cfg.val_max and len(val) > cfg.val_max:
@@ -173,6 +193,7 @@ def train(
             "state_dict": progress.best_state,
             "in_channels": input_channels(cfg, trainer.obs_len, trainer.maps.channels),
             "config": cfg.model_dump(mode="json"),
+            "sampling": goals_cfg.model_dump(mode="json"),
             "benchmark": benchmark,
             "best_epoch": progress.best_epoch,
         },

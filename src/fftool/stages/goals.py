@@ -46,7 +46,7 @@ def sample(
         goal, windows, maps: input artifacts. out_dir: the build folder.
         device: torch device. on_progress: called with (part, done, total).
     """
-    model, goal_cfg = load_model(goal, device)
+    model, goal_cfg, _ = load_model(goal, device)
     scene_maps = load_scene_maps(maps).to(device)
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])

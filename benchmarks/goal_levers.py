@@ -1,0 +1,166 @@
+"""The goal module's levers measured on validation: each alone against the shipped recipe, and together.
+
+Every lever trains the goal U-Net of each benchmark with the profile's recipe plus the lever's `--set`
+overrides (in its own artifact root), then scores the best epoch on the benchmark's **whole val part**:
+goal-FDE@20 (TTST, the profile's sampling) and FDE@1 for the mode found three ways (argmax, and the local
+softargmax over 3² and 5² cells). No test window is read. Appends one CSV row per (lever, benchmark, mode).
+
+    python benchmarks/goal_levers.py --lever before --lever centre --benchmarks all \
+        --out benchmarks/results/goal_levers.csv
+
+"before" and "centre" reproduce the two geometry fixes' absence (`--patch`), so the fixes are measured
+alone in the same code: `corner` puts the crop centre back on a cell corner, `no_uni_map` gives
+uni_examples no map.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import time
+from pathlib import Path
+
+import torch
+
+from fftool import pipeline
+from fftool.artifacts.schema import VERSIONS
+from fftool.artifacts.store import ArtifactStore
+from fftool.config import load_config
+from fftool.dataset import scenes
+from fftool.dataset.scenes import BENCHMARKS
+from fftool.learning import goal_model
+from fftool.learning.batches import load_agent_windows, load_scene_maps
+from fftool.learning.training import generator
+from fftool.pipeline import Runtime
+from fftool.science import heatmaps
+
+# name -> (--set overrides on the profile, patches that undo a geometry fix)
+LEVERS: dict[str, tuple[list[str], list[str]]] = {
+    "before": ([], ["corner", "no_uni_map"]),
+    "centre": ([], ["no_uni_map"]),
+    "uni_map": ([], ["corner"]),
+    "target_sigma_0.5": (["goal.target_sigma_cells=0.5"], ["corner", "no_uni_map"]),
+    "reversal_0.5": (["goal.time_reversal=0.5"], ["corner", "no_uni_map"]),
+    "steps_3": (["goal.supervised_steps=3"], ["corner", "no_uni_map"]),
+    "fixes": (["goal.target_sigma_cells=0.5", "goal.time_reversal=0.5"], []),
+    "fixes_steps_3": (["goal.target_sigma_cells=0.5", "goal.time_reversal=0.5", "goal.supervised_steps=3"], []),
+}
+MODE_RADII = (0, 1, 2)
+
+
+def _patch(name: str) -> None:
+    if name == "corner":
+        heatmaps.world_to_cells.__code__ = _corner_world_to_cells.__code__
+        heatmaps.cells_to_world.__code__ = _corner_cells_to_world.__code__
+    elif name == "no_uni_map":
+        scenes.SOURCE_SCENE["uni_examples"] = None
+    else:
+        raise SystemExit(f"unknown patch {name!r}")
+
+
+def _corner_world_to_cells(points, center, R, res, size):  # type: ignore[no-untyped-def]
+    local = torch.einsum("bji,bpj->bpi", R, points - center[:, None, :])
+    return local / res + size / 2 - 0.5
+
+
+def _corner_cells_to_world(cells, center, R, res, size):  # type: ignore[no-untyped-def]
+    local = (cells - size / 2 + 0.5) * res
+    return torch.einsum("bij,bpj->bpi", R, local) + center[:, None, :]
+
+
+def measure(lever: str, benchmark: str, profile: Path, extra: list[str], root: Path) -> list[dict[str, object]]:
+    overrides, patches = LEVERS[lever]
+    for name in patches:
+        _patch(name)
+    cfg = load_config(profile, [*overrides, *extra])
+    store = ArtifactStore(root / lever)
+    started = time.perf_counter()
+    built = pipeline.run(cfg, store, ["goal"], runtime=Runtime(), benchmark=benchmark)
+    seconds = time.perf_counter() - started
+    goal, windows, maps = built["goal"], built["windows"], built["maps"]
+    device = torch.device("cpu")
+    model, goal_cfg, sampling = goal_model.load_model(goal, device)
+    scene_maps = load_scene_maps(maps)
+    val = load_agent_windows(windows, benchmark, "val")
+    obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
+    fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len)
+    rows = []
+    for radius, (fde_k, fde_1) in fde.items():
+        rows.append(
+            {
+                "lever": lever,
+                "benchmark": benchmark,
+                "mode_radius_cells": radius,
+                "val_goal_fde@20_m": round(fde_k, 4),
+                "val_goal_fde@1_m": round(fde_1, 4),
+                "val_agent_windows": len(val),
+                "best_epoch": goal.manifest.stats.get("best_epoch"),
+                "build_s": round(float(goal.manifest.stats.get("build_seconds", seconds)), 1),
+                "threads": torch.get_num_threads(),
+                "overrides": " ".join([*overrides, *extra]),
+                "patches": " ".join(patches),
+            }
+        )
+    return rows
+
+
+@torch.no_grad()
+def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len) -> dict[int, tuple[float, float]]:  # type: ignore[no-untyped-def]
+    """Goal-FDE@K and @1 per mode radius, as `goal_model.evaluate` computes them, with the TTST draws made once:
+    the mode takes no random draw, so only goal 1 differs between radii."""
+    gen = generator(goal_cfg.seed, torch.device("cpu"))
+    scene = scene_maps.index_of_sources(val.source)
+    errors: dict[int, list[torch.Tensor]] = {radius: [] for radius in MODE_RADII}
+    for start in range(0, len(val), 1024):
+        xy = torch.as_tensor(val.xy[start : start + 1024], dtype=torch.float32)
+        zeros = torch.zeros(len(xy))
+        x, center, R = goal_model.goal_inputs(
+            xy[:, :obs_len], scene[start : start + 1024], scene_maps, goal_cfg, zeros, zeros.bool(), pred_len
+        )
+        logits = model(x)[:, -1]
+        cells = heatmaps.sample_goals(
+            logits, sampling.k, method=sampling.method, temperature=sampling.temperature,
+            threshold=sampling.threshold, samples=sampling.samples, iterations=sampling.kmeans_iterations,
+            generator=gen,
+        )  # fmt: skip
+        for radius in MODE_RADII:
+            cells[:, 0] = heatmaps.refine_mode(logits, radius, sampling.temperature)
+            goals = heatmaps.cells_to_world(cells, center, R, goal_cfg.resolution_m, goal_cfg.crop_cells)
+            errors[radius].append(torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1))
+    return {
+        radius: (float(torch.cat(e).min(1).values.mean()), float(torch.cat(e)[:, 0].mean()))
+        for radius, e in errors.items()
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--lever", action="append", required=True, help=f"one of {', '.join(LEVERS)}")
+    parser.add_argument("--benchmarks", default="all")
+    parser.add_argument("--profile", type=Path, default=Path("pipelines/cpu.toml"))
+    parser.add_argument("--set", dest="extra", action="append", default=[], help="more overrides, e.g. goal.epochs=16")
+    parser.add_argument("--root", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "fftool_goal_levers")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/goal_levers.csv"))
+    args = parser.parse_args()
+    assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
+    benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
+    for lever in args.lever:
+        for benchmark in benchmarks:
+            rows = measure(lever, benchmark, args.profile, args.extra, args.root)
+            new = not args.out.exists()
+            with args.out.open("a", newline="") as handle:
+                writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+                if new:
+                    writer.writeheader()
+                writer.writerows(rows)
+            best = min(rows, key=lambda r: float(r["val_goal_fde@1_m"]))
+            print(
+                f"{lever:>16} {benchmark:>6}  @20 {rows[0]['val_goal_fde@20_m']:.3f}  @1 {best['val_goal_fde@1_m']:.3f}"
+                f"  {rows[0]['build_s']} s",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,116 @@
+"""Markdown tables for the docs, rendered from the committed CSVs a command wrote, never typed by hand.
+
+The docs call these from cog blocks (`python -m cogapp -r <page>`); the test suite runs cog in check mode,
+so a page that disagrees with the data it was rendered from fails.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+
+import pandas as pd
+
+from fftool.dataset.scenes import BENCHMARKS, PUBLISHED_GOAL_FDE20
+from fftool.paper import PAPER_NAMES, PREDICTORS, PUBLISHED_REFERENCES, TABLE2_ADE_FDE, TABLE3_FDE, reads_goal
+
+_PROTOCOL_NAMES = {"fair": "fair", "paper": "paper's pick", "oracle": "true goal"}
+_GOAL_MODULES = ("Y-net", "Goal-SAR")
+
+
+def _markdown(header: Sequence[str], rows: Iterable[Sequence[str]], numeric_from: int = 1) -> str:
+    align = [":---" if i < numeric_from else "---:" for i in range(len(header))]
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join(align) + " |"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _pair(ade: float, fde: float, digits: int = 3) -> str:
+    return f"{ade:.{digits}f} / {fde:.{digits}f}"
+
+
+def _predictor_rows(results_csvs: Sequence[Path | str]) -> tuple[list[str], Iterator[tuple[str, pd.DataFrame]]]:
+    """The benchmarks the results cover, and (row name, its rows indexed by benchmark) per predictor and goal
+    protocol, in the files' order and the paper's predictor order, each (predictor, protocol) once."""
+    frames = [pd.read_csv(path) for path in results_csvs]
+    frames = [frame[frame["benchmark"].isin(BENCHMARKS)] for frame in frames]
+    benchmarks = [b for b in BENCHMARKS if any((frame["benchmark"] == b).any() for frame in frames)]
+
+    def rows() -> Iterator[tuple[str, pd.DataFrame]]:
+        seen = set()
+        for frame in frames:
+            for variant in PREDICTORS:
+                part = frame[frame["variant"] == variant].set_index("benchmark")
+                protocol = str(part["protocol"].iloc[0]) if len(part) else ""
+                if part.empty or (variant, protocol) in seen:
+                    continue
+                seen.add((variant, protocol))
+                name = PAPER_NAMES[variant]
+                yield (f"{name} ({_PROTOCOL_NAMES[protocol]})" if protocol in _PROTOCOL_NAMES else name), part
+
+    return benchmarks, rows()
+
+
+def protocol_table(*results_csvs: Path | str, published: bool = True) -> str:
+    """minADE / minFDE per benchmark and, over all five, their average: one row per predictor and goal protocol
+    from `fftool reproduce` results.csv files (in the order given), then the paper's and the published peers'."""
+    benchmarks, predictors = _predictor_rows(results_csvs)
+    columns = [*benchmarks, *(["average"] if len(benchmarks) == len(BENCHMARKS) else [])]
+    rows = []
+    for name, part in predictors:
+        cells = [_pair(part.at[b, "min_ade"], part.at[b, "min_fde"]) if b in part.index else "" for b in benchmarks]
+        if "average" in columns:
+            full = len(part) == len(benchmarks)
+            cells.append(_pair(part["min_ade"].mean(), part["min_fde"].mean()) if full else "")
+        rows.append([name, *cells])
+    if published:
+        for variant in ("baseline", "goal", "dr", "re"):
+            pick = " (paper's pick)" if reads_goal(variant) else ""
+            if variant in TABLE2_ADE_FDE:
+                cells = [_pair(*TABLE2_ADE_FDE[variant][c], digits=2) for c in columns]
+            else:  # Table II omits Goal: its minFDE is in Table III
+                cells = [f"– / {TABLE3_FDE[variant][c]:.2f}" for c in columns]
+            rows.append([f"{PAPER_NAMES[variant]}, the paper{pick}", *cells])
+        for name, pairs in PUBLISHED_REFERENCES.items():
+            label = name.replace(", published, not re-run", ", published")
+            rows.append([label, *(_pair(*pairs[c], digits=2) for c in columns)])
+    return _markdown(["method", *columns], rows)
+
+
+def collisions_table(*results_csvs: Path | str) -> str:
+    """Collisions (NC) per benchmark and in total, one row per predictor and goal protocol."""
+    benchmarks, predictors = _predictor_rows(results_csvs)
+    rows = []
+    for name, part in predictors:
+        counts = [f"{part.at[b, 'nc']:.0f}" if b in part.index else "" for b in benchmarks]
+        rows.append([name, *counts, f"{part['nc'].sum():.0f}"])
+    return _markdown(["method", *benchmarks, "total"], rows)
+
+
+def claims_table(claims_csv: Path | str) -> str:
+    """The paper's claims as `fftool reproduce` judged them (claims.csv): claim, our number, outcome."""
+    frame = pd.read_csv(claims_csv)
+    rows = [[str(r.claim), str(r.ours), f"**{r.outcome}**"] for r in frame.itertuples()]
+    return _markdown(["claim (the paper's)", "ours", "outcome"], rows, numeric_from=3)
+
+
+def goal_fde_table(goal_fde_csv: Path | str) -> str:
+    """The goal module alone (a report's goal_fde.csv): validation and test goal-FDE@K, FDE@1 of the mode,
+    constant velocity's, and the published goal modules' FDE@20, per benchmark and averaged (also without eth,
+    whose anchors come from another data file: docs/goal.md)."""
+    frame = pd.read_csv(goal_fde_csv).set_index("benchmark")
+    k = int(frame["k"].iloc[0])
+    measured = ["val_goal_fde@k", "test_goal_fde@k", "test_goal_fde@1", "test_cv_fde@k", "test_cv_fde@1"]
+    header = ["benchmark", f"val @{k}", f"test @{k}", "test @1 (mode)", f"test CV @{k}", "test CV @1",
+              *(f"{name} @20" for name in _GOAL_MODULES), "test agent-windows"]  # fmt: skip
+    rows = []
+    for benchmark in [b for b in BENCHMARKS if b in frame.index]:
+        r = frame.loc[benchmark]
+        anchors = [f"{PUBLISHED_GOAL_FDE20[name][benchmark]:.2f}" for name in _GOAL_MODULES]
+        rows.append([benchmark, *(f"{r[c]:.3f}" for c in measured), *anchors, f"{int(r['test_agent_windows']):,}"])
+    if len(rows) == len(BENCHMARKS):
+        for label, chosen in (("average", BENCHMARKS), ("average without eth", BENCHMARKS[1:])):
+            means = frame.loc[list(chosen), measured].mean()
+            anchors = [sum(PUBLISHED_GOAL_FDE20[name][b] for b in chosen) / len(chosen) for name in _GOAL_MODULES]
+            rows.append([f"**{label}**", *(f"{means[c]:.3f}" for c in measured), *(f"{a:.3f}" for a in anchors), ""])
+    return _markdown(header, rows)
