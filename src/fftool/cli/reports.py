@@ -162,7 +162,7 @@ _REPRODUCE_EXAMPLES = (
     "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --seeds 0,1,2   # 3 seeds, mean ±sd\n\n"
     "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --jobs 2   # two builds at a time, 1 thread each\n\n"
     "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU\n\n"
-    "  fftool ablate -c pipelines/quick.toml --variants dr --protocol fair --out fair/"
+    "  fftool ablate -c pipelines/quick.toml --variants dr --protocol paper --out paper/"
 )
 app.command(epilog=_REPRODUCE_EXAMPLES)(boundary(reproduce))
 app.command(

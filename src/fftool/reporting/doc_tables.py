@@ -114,3 +114,32 @@ def goal_fde_table(goal_fde_csv: Path | str) -> str:
             anchors = [sum(PUBLISHED_GOAL_FDE20[name][b] for b in chosen) / len(chosen) for name in _GOAL_MODULES]
             rows.append([f"**{label}**", *(f"{means[c]:.3f}" for c in measured), *(f"{a:.3f}" for a in anchors), ""])
     return _markdown(header, rows)
+
+
+def averages_table(fair_csv: Path | str, paper_csv: Path | str) -> str:
+    """The front page's table: each predictor's five-benchmark average minADE / minFDE under the fair protocol
+    and under the paper's pick, beside the paper's own number and the published peers'."""
+    columns = {}
+    for protocol, path in (("fair", fair_csv), ("paper", paper_csv)):
+        frame = pd.read_csv(path)
+        frame = frame[frame["benchmark"].isin(BENCHMARKS)]
+        means = frame.groupby("variant")[["min_ade", "min_fde"]].mean()
+        complete = frame.groupby("variant")["benchmark"].nunique() == len(BENCHMARKS)
+        columns[protocol] = {v: _pair(*means.loc[v]) for v in means.index if complete[v]}
+    rows = []
+    for variant in PREDICTORS:
+        if variant not in columns["fair"]:
+            continue
+        paper = TABLE2_ADE_FDE.get(variant, {}).get("average")
+        published = (
+            _pair(*paper, digits=2)
+            if paper
+            else (f"– / {TABLE3_FDE[variant]['average']:.2f}" if variant in TABLE3_FDE else "")
+        )
+        pick = columns["paper"].get(variant, "") if reads_goal(variant) else "same"
+        rows.append([PAPER_NAMES[variant], f"**{columns['fair'][variant]}**", pick, published])
+    for name, pairs in PUBLISHED_REFERENCES.items():
+        rows.append(
+            [name.replace(", published, not re-run", ", published"), _pair(*pairs["average"], digits=2), "", ""]
+        )
+    return _markdown(["method (five-benchmark average, m)", "fair", "paper's pick", "the paper"], rows)
