@@ -163,3 +163,18 @@ def test_rekey_moves_models_whose_code_version_alone_changed(
     assert not zoo.orphans(zoo.shipped("tiny"))
     moved = zoo.shipped("tiny")[0].artifact.manifest
     assert "rekeyed_from" in moved.stats
+
+
+def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_made(tiny: dict[str, Path]) -> None:
+    """A planner's goals steer the agents it names, by name or from a loaded model; the others get sampled goals."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    by_name = api.OnlinePredictor("tiny/zara1/dr", k=5, seed=1)
+    loaded = api.OnlinePredictor(api.load("tiny/zara1/dr"), goal_sampler="tiny/zara1/dr", k=5, seed=1)
+    passed = {1: (9.0, -4.0)}
+    for online in (by_name, loaded):
+        for step in range(8):
+            result = online.update(0.4 * step, {1: (0.4 * step, 0.0), 2: (0.0, 0.3 * step)}, goals=passed)
+        assert result.agents.tolist() == [1, 2]
+        assert np.allclose(result.goals[0], [9.0, -4.0])  # every sample of agent 1 heads to the passed goal
+        assert not np.allclose(result.goals[1], result.goals[1][0])  # agent 2: K goals from the U-Net
+    assert np.array_equal(by_name.update(3.2, {1: (3.2, 0.0)}, goals=passed).goals[0], np.tile([9.0, -4.0], (5, 1)))

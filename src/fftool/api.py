@@ -279,19 +279,22 @@ def draw_futures(
     predictor = model.predictor(k, seed)
     goals_of = predictor.goals
     if reads_goal(model.variant):
-        if goal_sampler is not None:
+        passed = [label in goals for label in labels] if goals is not None else [False] * len(labels)
+        given = np.array([goals[label] if ok else (np.nan, np.nan) for label, ok in zip(labels, passed)], np.float64)
+        if all(passed):  # every agent's goal is known: one goal for all K samples
+
+            def goals_of(batch: object, positions: np.ndarray) -> torch.Tensor:
+                chosen = torch.as_tensor(given[np.where(positions >= 0, positions, 0)], dtype=torch.float32)
+                return chosen.to(model.device)[:, None].expand(-1, k, -1, -1)
+
+        elif goal_sampler is not None:  # sample k decodes goal k; a passed goal replaces an agent's K samples
             sampled = goal_sampler.sample(found.xy, k, seed, model.pred_len, model.device)
+            sampled[np.asarray(passed)] = given[np.asarray(passed), None].astype(sampled.dtype)
             predictor = model.predictor(k, seed, "fair", sampled)
             goals_of = predictor.goals
         elif goals is not None:
-            missing = [label for label in dict.fromkeys(labels) if label not in goals]
-            if missing:
-                raise FftoolError(f"no goal given for agent(s) {', '.join(map(str, missing[:5]))}")
-            given = torch.as_tensor(np.array([goals[label] for label in labels], dtype=np.float64))
-
-            def goals_of(batch: object, positions: np.ndarray) -> torch.Tensor:
-                chosen = given[np.where(positions >= 0, positions, 0)].to(torch.float32).to(model.device)
-                return chosen[:, None].expand(-1, k, -1, -1)
+            missing = [label for label, ok in zip(labels, passed) if not ok]
+            raise FftoolError(f"no goal given for agent(s) {', '.join(map(str, list(dict.fromkeys(missing))[:5]))}")
         else:
             raise UsageError(f"the {model.variant} variant steers toward goals: give goals or a goal U-Net")
     plan = plan_batches(scenes, predictor.cfg)
@@ -383,7 +386,8 @@ class OnlinePredictor:
     ) -> OnlineFutures:
         """Take the detections at `time_s` (seconds, later than the last update) and predict from them.
 
-        goals: for goal variants without a goal sampler, one (x, y) per agent detected now."""
+        goals: for goal variants, one (x, y) per agent detected now: used before any goal sampler's goals (an
+        agent without one gets the sampler's K goals)."""
         agents, xy = self._checked(time_s, detections)
         if goals is not None:
             _positions(goals, [a for a in agents if a in goals], "goal of agent", time_s)

@@ -133,7 +133,7 @@ def predict(
     if goals is not None:
         goal_rows = read_goals(goals, columns, units)
         per_agent = dict(zip(goal_rows["agent"], zip(goal_rows["x"], goal_rows["y"])))
-    if goal_model is None and goals is None and is_name(model) and reads_goal(chosen.variant):
+    if goal_model is None and is_name(model) and reads_goal(chosen.variant):
         goal_model = model  # a shipped goal variant brings its benchmark's goal U-Net
     sampler = load_goal_sampler(goal_model, root=root, device=chosen.device) if goal_model else None
     table, warnings = predict_tracks(
