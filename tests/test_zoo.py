@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -178,3 +179,30 @@ def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_
         assert np.allclose(result.goals[0], [9.0, -4.0])  # every sample of agent 1 heads to the passed goal
         assert not np.allclose(result.goals[1], result.goals[1][0])  # agent 2: K goals from the U-Net
     assert np.array_equal(by_name.update(3.2, {1: (3.2, 0.0)}, goals=passed).goals[0], np.tile([9.0, -4.0], (5, 1)))
+
+
+def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: dict[str, Path]) -> None:
+    """The fair path users take: a shipped goal variant predicting at time t gives the same futures whether the
+    tracks after t are there, scrambled or gone; the online predictor, fed up to t, gives the same again."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    rng = np.random.default_rng(0)
+    times = np.arange(20) * 0.4
+    tracks = pd.DataFrame(
+        [(t, agent, x0 + 0.4 * i, y0 + 0.1 * i) for agent, (x0, y0) in enumerate([(0, 0), (5, 2)]) for i, t in
+         enumerate(times)], columns=["time_s", "agent", "x", "y"])  # fmt: skip
+    at, model = float(times[9]), api.load("tiny/zara1/dr")
+    sampler = api.load_goal_sampler("tiny/zara1/dr")
+    future = tracks["time_s"] > at + 1e-9
+    scrambled = tracks.copy()
+    scrambled.loc[future, ["x", "y"]] = rng.normal(0, 50, (int(future.sum()), 2))
+    tables = [
+        api.predict_tracks(model, frame, at=[at], k=5, seed=2, goal_sampler=sampler)[0]
+        for frame in (tracks, scrambled, tracks[~future])
+    ]
+    assert len(tables[0]) == 2 * 5 * 12 and not tables[0].isna().any().any()
+    for table in tables[1:]:
+        pd.testing.assert_frame_equal(table, tables[0])
+    online = api.OnlinePredictor("tiny/zara1/dr", k=5, seed=2)
+    for t, rows in tracks[~future].groupby("time_s"):
+        result = online.update(float(t), dict(zip(rows["agent"], zip(rows["x"], rows["y"]))))
+    assert np.array_equal(result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy())
