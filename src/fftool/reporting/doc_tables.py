@@ -143,3 +143,14 @@ def averages_table(fair_csv: Path | str, paper_csv: Path | str) -> str:
             [name.replace(", published, not re-run", ", published"), _pair(*pairs["average"], digits=2), "", ""]
         )
     return _markdown(["method (five-benchmark average, m)", "fair", "paper's pick", "the paper"], rows)
+
+
+def zoo_table(profile: str) -> str:
+    """The shipped models of a profile as `fftool models list` shows them (without the status column)."""
+    from fftool import zoo
+    from fftool.reporting.summaries import zoo_caption, zoo_rows
+
+    models = zoo.shipped(profile)
+    rows = [[value for key, value in row.items() if key != "id"] for row in zoo_rows(models)]
+    header = ["name", "kind", "validation (best epoch), metres", "best epoch / epochs", "size"]
+    return _markdown(header, rows, numeric_from=3) + f"\n{zoo_caption(models)}.\n"

@@ -267,12 +267,11 @@ def _best_row(manifest: Any) -> dict[str, Any]:
     return rows[0] if rows else {}
 
 
-def zoo_table(models: list[Any], orphaned: set[str]) -> Table:
-    """The shipped models: name, kind, validation numbers of the best epoch (labelled "true goals" where the CVAE
-    was validated with each window's true end point as its goal: not what a user gets), size, status."""
-    table = Table(title="shipped models (models/<profile>/)", title_justify="left")
-    for name in ("name", "kind", "id", "validation (best epoch)", "epochs", "size", "status"):
-        table.add_column(name, justify="right" if name in ("epochs", "size") else "left", no_wrap=name != "id")
+def zoo_rows(models: list[Any]) -> list[dict[str, str]]:
+    """One row per shipped model: name, kind, id, its best epoch's validation numbers (labelled "true goals"
+    where a goal-reading model was validated with each window's true end point as its goal: not what a user
+    gets), best epoch / epochs, size."""
+    rows = []
     for model in models:
         manifest = model.artifact.manifest
         row = _best_row(manifest)
@@ -287,15 +286,36 @@ def zoo_table(models: list[Any], orphaned: set[str]) -> Table:
                 ((k, v) for k, v in manifest.stats.items() if k.startswith("best_") and k != "best_epoch"), None
             )
             shown = f"{best[0].removeprefix('best_')} {best[1]:.3f}" if best and best[1] is not None else ""
-        size = sum(f["bytes"] for f in manifest.files.values())
-        status = "[red]orphaned[/]" if model.name in orphaned else "[green]current[/]"
-        epochs = f"{manifest.stats.get('best_epoch', '')}/{len(manifest.stats.get('log', []))}"
-        table.add_row(model.name, model.kind, model.artifact.id, shown, epochs, f"{size / 1e6:.2f} MB", status)
+        rows.append(
+            {
+                "name": model.name,
+                "kind": model.kind,
+                "id": model.artifact.id,
+                "validation (best epoch)": shown,
+                "epochs": f"{manifest.stats.get('best_epoch', '')}/{len(manifest.stats.get('log', []))}",
+                "size": f"{sum(f['bytes'] for f in manifest.files.values()) / 1e6:.2f} MB",
+            }
+        )
+    return rows
+
+
+def zoo_caption(models: list[Any]) -> str:
     total = sum(sum(f["bytes"] for f in m.artifact.manifest.files.values()) for m in models)
-    table.caption = (
+    if not models:
+        return "no shipped models"
+    return (
         f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint; "
         "(true goals): validated with the true end point as the goal, which no prediction has"
-        if models
-        else "no shipped models"
     )
+
+
+def zoo_table(models: list[Any], orphaned: set[str]) -> Table:
+    """The shipped models (`zoo_rows`) with their status: current, or orphaned."""
+    table = Table(title="shipped models (models/<profile>/)", title_justify="left")
+    for name in ("name", "kind", "id", "validation (best epoch)", "epochs", "size", "status"):
+        table.add_column(name, justify="right" if name in ("epochs", "size") else "left", no_wrap=name != "id")
+    for model, row in zip(models, zoo_rows(models)):
+        status = "[red]orphaned[/]" if model.name in orphaned else "[green]current[/]"
+        table.add_row(*row.values(), status)
+    table.caption = zoo_caption(models)
     return table
