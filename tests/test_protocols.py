@@ -15,7 +15,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.config import CVAEConfig, EvaluateConfig, ForcesConfig, load_config
 from fftool.learning import cvae_model
 from fftool.learning.batches import SceneBatch, load_scene_set
-from fftool.learning.protocols import constant_velocity, protocol_goals, with_past_forces
+from fftool.learning.protocols import constant_velocity, protocol_goals, with_forces, with_past_forces
 from fftool.learning.sampling import Predictor
 from fftool.learning.training import save_checkpoint
 
@@ -46,6 +46,16 @@ def test_past_forces_recomputed_toward_the_true_goal_equal_the_stored_ones(scene
     torch.testing.assert_close(again.f_dr[:, :, :8][mask], batch.f_dr[:, :, :8][mask], atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(again.f_re[:, :, :8][mask], batch.f_re[:, :, :8][mask], atol=1e-4, rtol=1e-4)
     assert again.f_dr[:, :, 8:].abs().sum() == 0  # the future forces are never handed to the sampler
+
+
+def test_all_forces_recomputed_toward_the_true_goal_equal_the_stored_ones(scene: dict) -> None:
+    """Training with goals other than the true end point recomputes every step's forces toward them: with the
+    true end point, that gives back what the forces stage stored, future steps included."""
+    batch: SceneBatch = scene["batch"]
+    again = with_forces(batch, batch.xy[:, :, -1], ForcesConfig(), 0.4, 8)
+    mask = batch.agent_mask
+    torch.testing.assert_close(again.f_dr[mask], batch.f_dr[mask], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(again.f_re[mask], batch.f_re[mask], atol=1e-4, rtol=1e-4)
 
 
 def _predictor(tmp_path: Path, protocol: str, sampled: np.ndarray) -> Predictor:

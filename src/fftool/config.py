@@ -229,6 +229,21 @@ class GoalsConfig(_ConstantVelocity):
     seed: int = 0
 
 
+class GoalTrainingConfig(_Section):
+    """Where the goal-reading CVAEs (goal, dr, re) get their goals in training, and how their best epoch is
+    chosen (stage `cvae`, which reads this section only for those variants and only when `source` is not the
+    paper's, so the paper's models keep their fingerprints)."""
+
+    # true: each window's true end point; best epoch by validation minADE with true goals (the paper's choice).
+    # module: the true end point moved by one of the goal module's own errors, drawn from its errors on the
+    # validation windows it never trained on (the nearest of its K goals, in the window's heading frame, from
+    # windows of a similar speed), so the decoder meets goals as wrong as the best of the K it gets at test;
+    # best epoch by validation minADE under the fair protocol (sample k decodes the module's goal k).
+    source: Literal["true", "module"] = "true"
+    true_share: float = Field(0.0, ge=0, le=1)  # module: the share of training agents that keep the true goal
+    speed_bins: int = Field(8, gt=0)  # module: errors come from validation windows of the same speed quantile
+
+
 class CVAEConfig(_Section):
     """The AgentFormer CVAE backbone and its ForceFormer input variant (defaults: AgentFormer ETH/UCY)."""
 
@@ -395,6 +410,7 @@ class PipelineConfig(_Section):
     maps: MapsConfig = MapsConfig()
     goal: GoalConfig = GoalConfig()
     goals: GoalsConfig = GoalsConfig()
+    goal_training: GoalTrainingConfig = GoalTrainingConfig()
     cvae: CVAEConfig = CVAEConfig()
     dlow: DLowConfig = DLowConfig()
     evaluate: EvaluateConfig = EvaluateConfig()

@@ -63,6 +63,16 @@ def with_past_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: f
     return replace(batch, f_dr=torch.cat([f_dr, future], 2), f_re=torch.cat([f_re, future], 2))
 
 
+def with_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: float, obs_len: int) -> SceneBatch:
+    """The batch with F_dr, F_re of every step, observed and future, recomputed toward `goal` (B, A, 2): what a
+    CVAE trained with goals other than the true end point reads (its posterior reads the future's)."""
+    present = batch.agent_mask[:, :, None].expand(-1, -1, batch.xy.shape[2])
+    velocity = finite_difference_velocity(batch.xy, present, dt_s, obs_len)
+    speed0 = desired_speed(velocity, present, obs_len, cfg)
+    f_dr, f_re = social_forces(batch.xy, present, goal, velocity, speed0, group_pairs(batch.group), cfg)
+    return replace(batch, f_dr=f_dr, f_re=f_re)
+
+
 def repeat_windows(batch: SceneBatch, k: int) -> SceneBatch:
     """Each window k times in a row (repeat_interleave order), e.g. one copy per goal of the fair protocol."""
     return batch.map(lambda t: t.repeat_interleave(k, 0))

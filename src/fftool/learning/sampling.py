@@ -10,9 +10,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
+import pyarrow.parquet as pq
 import torch
 
+from fftool.artifacts.schema import GOALS_FILE, GOALS_INDEX_FILE
+from fftool.artifacts.store import Artifact
 from fftool.config import EvaluateConfig
+from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch, SceneSet
 from fftool.learning.cvae_model import Trained, sample
 from fftool.learning.features import prepare
@@ -20,6 +24,7 @@ from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_
 from fftool.learning.training import generator
 from fftool.models.dlow import QNet
 from fftool.paper import reads_goal
+from fftool.science.metrics import ade_fde
 
 # (batch, positions of its slots in the scene set's rows, -1 for padding) -> (B, K, A, 2) world goals
 GoalsOf = Callable[[SceneBatch, np.ndarray], torch.Tensor]
@@ -126,3 +131,45 @@ def sample_batches(
         positions = np.where(rows >= 0, np.searchsorted(scenes.data.row, rows), -1)
         goals = goals_of(batch, positions)
         yield batch, goals, predictor(batch, goals)
+
+
+def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
+    """(M, K, 2) sampled goals aligned with the scene set's agent-windows (checked key by key)."""
+    index = pq.read_table(goals.file(GOALS_INDEX_FILE)).to_pandas()
+    rows = np.flatnonzero((index["benchmark"] == benchmark).to_numpy() & (index["part"] == part).to_numpy())
+    if len(rows) != len(scenes.data) or not (
+        np.array_equal(index["window_id"].to_numpy()[rows], scenes.data.window_id)
+        and np.array_equal(index["ped_id"].to_numpy()[rows], scenes.data.ped_id)
+    ):
+        raise FftoolError(
+            f"{goals.file(GOALS_INDEX_FILE)}: the goals of {benchmark}/{part} do not match the windows artifact "
+            f"({len(rows)} goal rows for {len(scenes.data)} agent-windows); rebuild with fftool sample-goals"
+        )
+    return np.load(goals.file(GOALS_FILE), mmap_mode="r")[rows]
+
+
+@torch.no_grad()
+def fair_min_ade_fde(
+    trained: Trained,
+    scenes: SceneSet,
+    windows: np.ndarray,
+    sampled_goals: np.ndarray,
+    obs_len: int,
+    k: int,
+    seed: int,
+) -> tuple[float, float]:
+    """minADE_K and minFDE_K (metres, per agent) of the windows `windows` of `scenes` under the fair protocol:
+    sample k decodes sampled goal k (sampled_goals (M, K, 2), aligned with scenes.data), as `evaluate` does."""
+    model, cfg = trained.model, trained.config
+    device = next(model.parameters()).device
+    evaluate = EvaluateConfig(protocol="fair", k=k, seed=seed, batch_windows=cfg.batch_windows)
+    predictor = Predictor(evaluate, trained, sampled_goals, obs_len, scenes.data.xy.shape[1] - obs_len, device)
+    plan = scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(seed))
+    ade, fde, count = 0.0, 0.0, 0
+    for batch, _, futures in sample_batches(predictor, scenes, plan, predictor.goals, device):
+        sample_ade, sample_fde = ade_fde(futures, batch.xy[:, :, obs_len:])  # (B, K, A)
+        mask = batch.agent_mask
+        ade += float((sample_ade.min(1).values * mask).sum())
+        fde += float((sample_fde.min(1).values * mask).sum())
+        count += int(mask.sum())
+    return ade / max(count, 1), fde / max(count, 1)

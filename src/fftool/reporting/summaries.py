@@ -268,19 +268,21 @@ def _best_row(manifest: Any) -> dict[str, Any]:
 
 
 def zoo_rows(models: list[Any]) -> list[dict[str, str]]:
-    """One row per shipped model: name, kind, id, its best epoch's validation numbers (labelled "true goals"
-    where a goal-reading model was validated with each window's true end point as its goal: not what a user
-    gets), best epoch / epochs, size."""
+    """One row per shipped model: name, kind, id, its best epoch's validation numbers (for goal-reading models
+    labelled "fair" where they were chosen under the fair protocol, "true goals" where each window's true end
+    point was their goal: not what a user gets), best epoch / epochs, size."""
     rows = []
     for model in models:
         manifest = model.artifact.manifest
         row = _best_row(manifest)
-        ade = next((v for k, v in row.items() if k.startswith("val_min_ade")), None)
-        fde = next((v for k, v in row.items() if k.startswith("val_min_fde")), None)
+        fair = any(k.startswith("val_fair_min_ade") for k in row)  # chosen under the fair protocol
+        prefix = "val_fair_min_" if fair else "val_min_"
+        ade = next((v for k, v in row.items() if k.startswith(f"{prefix}ade")), None)
+        fde = next((v for k, v in row.items() if k.startswith(f"{prefix}fde")), None)
         if ade is not None and fde is not None:
             shown = f"minADE/FDE {ade:.3f}/{fde:.3f}"
             if model.variant is not None and reads_goal(model.variant):
-                shown += " (true goals)"
+                shown += " (fair)" if fair else " (true goals)"
         else:
             best = next(
                 ((k, v) for k, v in manifest.stats.items() if k.startswith("best_") and k != "best_epoch"), None
@@ -305,7 +307,8 @@ def zoo_caption(models: list[Any]) -> str:
         return "no shipped models"
     return (
         f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint; "
-        "(true goals): validated with the true end point as the goal, which no prediction has"
+        "(true goals): validated with the true end point as the goal, which no prediction has; (fair): "
+        "validated with the goal module's goals, sample k with goal k"
     )
 
 

@@ -1,7 +1,9 @@
 """Train the AgentFormer CVAE with a ForceFormer input variant on one leave-one-out benchmark.
 
-Reads: windows and, for the dr and re variants, the forces arrays they use (`features.TRAINING_READS`;
-training goals are the ground truth). Writes: `cvae/<fp>/model.pt` (best
+Reads: windows and, for the dr and re variants, the forces arrays they use (`features.TRAINING_READS`).
+Training goals are the ground truth, or, for goal variants with `goal_training.source = "module"`, the
+ground truth moved by the goal module's own errors (`learning.goal_errors`, from the goals artifact's
+validation part), the best epoch then chosen under the fair protocol on validation. Writes: `cvae/<fp>/model.pt` (best
 weights by validation minADE, the resolved config, everything needed to rebuild the model),
 `log.csv` and the same per-epoch curves as TensorBoard events in `tensorboard/` (written live to the
 scratch folder while training: `tensorboard --logdir <root>`). Run: `fftool train-cvae --benchmark zara1 --variant dr`.
@@ -26,11 +28,13 @@ import torch
 
 from fftool.artifacts.schema import COMMANDS, CVAE_LOG_FILE, CVAE_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
-from fftool.config import CVAEConfig, ForcesConfig, PipelineConfig
-from fftool.learning import distributed
+from fftool.config import CVAEConfig, ForcesConfig, GoalTrainingConfig, PipelineConfig
+from fftool.learning import distributed, goal_errors
 from fftool.learning.batches import SceneSet, load_scene_set
-from fftool.learning.cvae_model import build_model, epoch_plan, training_loss, val_windows, validate
-from fftool.learning.features import TRAINING_READS, prepare, training_inputs
+from fftool.learning.cvae_model import Trained, build_model, epoch_plan, training_loss, val_windows, validate
+from fftool.learning.features import TRAINING_READS, prepare, training_inputs, uses_forces
+from fftool.learning.protocols import with_forces
+from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
 from fftool.learning.training import (
     epoch_seed,
     fit,
@@ -42,6 +46,7 @@ from fftool.learning.training import (
     seed_all,
 )
 from fftool.models.forceformer import ForceFormer
+from fftool.paper import reads_goal
 from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "cvae"
@@ -68,6 +73,8 @@ class _Trainer:
     dt_s: float | None
     per_epoch: int  # training windows per epoch
     device: torch.device
+    errors: goal_errors.GoalErrors | None = None  # the goal module's errors, to move training goals by
+    val_goals: np.ndarray | None = None  # (M, K, 2) the goal module's goals of `val`: the fair validation
     first_steps: list[int] = field(init=False)  # each epoch's first optimizer step; [-1]: the schedule's budget
     net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
 
@@ -95,7 +102,12 @@ class _Trainer:
             if distributed.active():
                 mine, share = distributed.shard(members)
                 batch, weight = batch.map(partial(_rows, torch.as_tensor(mine))), share / distributed.world_size()
-            prepared = prepare(batch.to(device), cfg.variant, self.obs_len, rotate=cfg.rotate, generator=gen)
+            batch, goal = batch.to(device), None
+            if self.errors is not None:  # goals as wrong as the goal module's, past forces toward them
+                goal = self.errors.draw(batch.xy, self.obs_len, gen)
+                if self.forces_cfg is not None and self.dt_s is not None:
+                    batch = with_forces(batch, goal, self.forces_cfg, self.dt_s, self.obs_len)
+            prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
             warm = epoch < cfg.best_of_k_warmup_epochs  # fftool's option: the posterior first, then the full loss
             parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
             total = parts.total * share if distributed.active() else parts.total
@@ -124,15 +136,24 @@ class _Trainer:
         }
 
     def validate(self) -> dict[str, float]:
-        """minADE_K and minFDE_K of the fixed validation subset."""
+        """minADE_K and minFDE_K of the fixed validation subset (with true goals), and, with the goal module's
+        goals, under the fair protocol."""
         cfg = self.cfg
         found = validate(
             self.model, self.val, self.val_subset, cfg, self.forces_cfg, self.dt_s, self.obs_len, self.device
         )
         ade, fde = found.pop("min_ade"), found.pop("min_fde")
+        fair = {}
+        if self.val_goals is not None:
+            trained = Trained(self.model, cfg, self.forces_cfg, self.dt_s)
+            found_ade, found_fde = fair_min_ade_fde(
+                trained, self.val, self.val_subset, self.val_goals, self.obs_len, cfg.k, cfg.seed
+            )
+            fair = {f"val_fair_min_ade@{cfg.k}_m": found_ade, f"val_fair_min_fde@{cfg.k}_m": found_fde}
         return {
             f"val_min_ade@{cfg.k}_m": ade,
             f"val_min_fde@{cfg.k}_m": fde,
+            **fair,
             **{f"val_{k}": v for k, v in found.items()},
         }
 
@@ -144,12 +165,21 @@ def _trainer(
     windows: Artifact,
     forces: Artifact | None,
     device: torch.device,
+    goal_training: GoalTrainingConfig | None = None,
+    goals: Artifact | None = None,
 ) -> _Trainer:
-    """The benchmark's scenes with the forces the variant reads, and a fresh model seeded by the run's seed."""
+    """The benchmark's scenes with the forces the variant reads, and a fresh model seeded by the run's seed;
+    with the goal module's goals (`goals`), its errors for training and its validation goals."""
     reads = TRAINING_READS[cfg.variant]
     train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride, reads)
     val = load_scene_set(windows, forces, benchmark, "val", reads=reads)
     val_subset = val_windows(val, cfg)
+    obs_len = int(windows.manifest.stats["obs_len"])
+    errors, val_goals = None, None
+    if goals is not None and goal_training is not None:
+        val_goals = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
+        fitted = goal_errors.fit(val.data.xy, val_goals, obs_len, goal_training.speed_bins, goal_training.true_share)
+        errors = fitted.to(device)
     seed_all(cfg.seed)
     model = build_model(cfg).to(device)
     return _Trainer(
@@ -160,25 +190,35 @@ def _trainer(
         train=train,
         val=val,
         val_subset=val_subset,
-        obs_len=int(windows.manifest.stats["obs_len"]),
+        obs_len=obs_len,
         dt_s=float(forces.manifest.stats["dt_s"]) if forces is not None else None,  # the forces' time step
         per_epoch=min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows,
         device=device,
+        errors=errors,
+        val_goals=val_goals,
     )
 
 
 def train(
-    cfg: CVAEConfig, forces_cfg: ForcesConfig, windows: Artifact, forces: Artifact | None, ctx: StageContext
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig,
+    windows: Artifact,
+    forces: Artifact | None,
+    ctx: StageContext,
+    goal_training: GoalTrainingConfig | None = None,
+    goals: Artifact | None = None,
 ) -> dict[str, Any]:
     """Train with validation every epoch; write the best model and the log; return the manifest stats.
 
     cfg: the `cvae` section (variant included); forces_cfg: the force constants used in the decoder;
     windows, forces: input artifacts (no forces for the baseline and goal variants); ctx: the benchmark,
-    build and scratch folders, device, callbacks.
+    build and scratch folders, device, callbacks; goal_training, goals: for goal variants trained with the
+    goal module's errors, the section and the goals artifact (the best epoch is then the fair one).
     """
     benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.dir
-    trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device)
-    started, best_by = time.perf_counter(), f"val_min_ade@{cfg.k}_m"
+    trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device, goal_training, goals)
+    fair = "_fair" if trainer.val_goals is not None else ""
+    started, best_by = time.perf_counter(), f"val{fair}_min_ade@{cfg.k}_m"
     progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=CVAE_LOG_FILE)
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,
@@ -204,13 +244,21 @@ def train(
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: train one benchmark's CVAE of the configured variant (the force constants its
     decoder reads come with the forces arrays it declares)."""
-    forces = inputs.get("forces")
-    return train(cfg.cvae, cfg.forces if forces is not None else None, inputs["windows"], forces, ctx)
+    forces, goals = inputs.get("forces"), inputs.get("goals")
+    goal_training = cfg.goal_training if goals is not None else None
+    return train(
+        cfg.cvae, cfg.forces if forces is not None else None, inputs["windows"], forces, ctx, goal_training, goals
+    )
 
 
 def declare(cfg: PipelineConfig) -> Reads:
     """The cvae section, the windows and, for dr and re, the forces arrays the variant trains on."""
     variant = cfg.cvae.variant
+    if reads_goal(variant) and cfg.goal_training.source == "module":  # the goal module's goals and errors
+        artifacts = training_inputs(variant) | {"goals": None}
+        recomputed = ("forces.*",) if uses_forces(variant) else ()  # every force toward the goals it trains with
+        params = ("cvae.*", "goal_training.*", *recomputed)
+        return Reads(params=params, artifacts=artifacts, command=f" --variant {variant}")
     return Reads(params=("cvae.*",), artifacts=training_inputs(variant), command=f" --variant {variant}")
 
 

@@ -24,15 +24,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 
-from fftool.artifacts.schema import COMMANDS, GOALS_FILE, GOALS_INDEX_FILE, PREDICTIONS_FILE, VERSIONS
+from fftool.artifacts.schema import COMMANDS, PREDICTIONS_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import EvaluateConfig, PipelineConfig
 from fftool.errors import FftoolError
-from fftool.learning.batches import SceneBatch, SceneSet, load_scene_set
+from fftool.learning.batches import SceneBatch, load_scene_set
 from fftool.learning.cvae_model import load_model
 from fftool.learning.dlow_model import load_sampler
 from fftool.learning.features import SAMPLING_READS
-from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
+from fftool.learning.sampling import Predictor, collect, load_sampled_goals, plan_batches, sample_batches
 from fftool.paper import reads_goal
 from fftool.science.metrics import agent_metrics, collision_count
 from fftool.stages.contract import Reads, Stage, StageContext
@@ -91,21 +91,6 @@ def declare(cfg: PipelineConfig) -> Reads:
 
 # The evaluate keys only some predictors read (`declare`): the goal protocol, the constant-velocity noise.
 _PER_PREDICTOR: Final = frozenset({"protocol", "cv_angle_std_deg", "cv_speed_std"})
-
-
-def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
-    """(M, K, 2) sampled goals aligned with the scene set's agent-windows (checked key by key)."""
-    index = pq.read_table(goals.file(GOALS_INDEX_FILE)).to_pandas()
-    rows = np.flatnonzero((index["benchmark"] == benchmark).to_numpy() & (index["part"] == part).to_numpy())
-    if len(rows) != len(scenes.data) or not (
-        np.array_equal(index["window_id"].to_numpy()[rows], scenes.data.window_id)
-        and np.array_equal(index["ped_id"].to_numpy()[rows], scenes.data.ped_id)
-    ):
-        raise FftoolError(
-            f"{goals.file(GOALS_INDEX_FILE)}: the goals of {benchmark}/{part} do not match the windows artifact "
-            f"({len(rows)} goal rows for {len(scenes.data)} agent-windows); rebuild with fftool sample-goals"
-        )
-    return np.load(goals.file(GOALS_FILE), mmap_mode="r")[rows]
 
 
 def _predictions_table(columns: dict[str, np.ndarray], k: int, pred_len: int) -> pa.Table:

@@ -1,0 +1,86 @@
+"""Training goals as wrong as the goal module's (`goal_training.source = "module"`).
+
+A CVAE trained with each window's true end point learns to trust its goal completely, then meets sampled
+goals at test. Here a training goal is the true end point moved by an error the goal module made on a window
+it never trained on: on each validation window, the error of the nearest of its K goals (the goal the best of
+the K fair samples decodes), expressed in that window's heading frame and drawn for a training agent of the
+same speed quantile, then turned to the agent's own heading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+_STANDING_M = 1e-3  # a last observed step shorter than this has no heading: the frame is the world's
+
+
+def heading(xy: Tensor, obs_len: int) -> tuple[Tensor, Tensor]:
+    """Unit heading (..., 2) and length (...) of the last observed step of paths (..., T, 2)."""
+    step = xy[..., obs_len - 1, :] - xy[..., obs_len - 2, :]
+    speed = torch.linalg.vector_norm(step, dim=-1)
+    east = torch.zeros_like(step)
+    east[..., 0] = 1.0
+    unit = torch.where((speed > _STANDING_M)[..., None], step / speed.clamp_min(_STANDING_M)[..., None], east)
+    return unit, speed
+
+
+def _to_frame(vector: Tensor, unit: Tensor) -> Tensor:
+    """World vectors (..., 2) in the frame whose x axis is `unit` (..., 2)."""
+    along = (vector * unit).sum(-1)
+    across = vector[..., 1] * unit[..., 0] - vector[..., 0] * unit[..., 1]
+    return torch.stack([along, across], -1)
+
+
+def _from_frame(local: Tensor, unit: Tensor) -> Tensor:
+    """The inverse of `_to_frame`."""
+    x, y = local[..., 0, None], local[..., 1, None]
+    normal = torch.stack([-unit[..., 1], unit[..., 0]], -1)
+    return x * unit + y * normal
+
+
+@dataclass(frozen=True)
+class GoalErrors:
+    """The goal module's nearest-goal errors on validation windows, grouped by the windows' speed quantile."""
+
+    local: Tensor  # (M, 2) errors in each window's heading frame, rows sorted by speed bin
+    edges: Tensor  # (bins - 1,) speed quantiles, metres per step
+    start: Tensor  # (bins,) first row of each bin
+    count: Tensor  # (bins,) rows of each bin (an empty bin draws from all rows)
+    true_share: float  # the share of agents that keep their true goal
+
+    def to(self, device: torch.device) -> GoalErrors:
+        moved = (self.local, self.edges, self.start, self.count)
+        return GoalErrors(*(t.to(device) for t in moved), self.true_share)
+
+    def draw(self, xy: Tensor, obs_len: int, gen: torch.Generator) -> Tensor:
+        """(B, A, 2) training goals for windows xy (B, A, T, 2): the true end point plus a drawn error."""
+        unit, speed = heading(xy, obs_len)
+        group = torch.bucketize(speed, self.edges)  # (B, A)
+        u = torch.rand(speed.shape, generator=gen, device=xy.device)
+        row = self.start[group] + (u * self.count[group]).long().clamp_max(self.count[group] - 1)
+        moved = xy[..., -1, :] + _from_frame(self.local[row], unit)
+        keep = torch.rand(speed.shape, generator=gen, device=xy.device) < self.true_share
+        return torch.where(keep[..., None], xy[..., -1, :], moved)
+
+
+def fit(val_xy: np.ndarray, val_goals: np.ndarray, obs_len: int, bins: int, true_share: float) -> GoalErrors:
+    """The errors of validation windows (M, T, 2) whose goal module drew goals (M, K, 2) for them."""
+    xy = torch.as_tensor(np.asarray(val_xy), dtype=torch.float32)
+    goals = torch.as_tensor(np.asarray(val_goals), dtype=torch.float32)
+    if len(xy) == 0:
+        raise ValueError("the goal module's errors need validation windows with sampled goals; there are none")
+    error = goals - xy[:, None, -1]  # (M, K, 2)
+    nearest = error[torch.arange(len(xy)), torch.linalg.vector_norm(error, dim=-1).argmin(1)]
+    unit, speed = heading(xy, obs_len)
+    edges = torch.quantile(speed, torch.linspace(0, 1, bins + 1)[1:-1])
+    group = torch.bucketize(speed, edges)
+    order = torch.argsort(group, stable=True)
+    count = torch.bincount(group, minlength=bins)
+    start = torch.cumsum(count, 0) - count
+    empty = count == 0
+    start, count = torch.where(empty, 0, start), torch.where(empty, len(xy), count)
+    return GoalErrors(_to_frame(nearest, unit)[order], edges, start, count, float(true_share))

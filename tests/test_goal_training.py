@@ -1,0 +1,69 @@
+"""Goal variants trained with the goal module's own errors and chosen under the fair protocol
+(`goal_training.source = "module"`); the paper's choice, true goals, keeps its models and fingerprints."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from fftool import pipeline
+from fftool.artifacts.store import ArtifactStore
+from fftool.config import load_config, predictor_config
+from fftool.learning import goal_errors
+
+from .test_maps import make_scene
+from .test_reproduce import TINY_PIPELINE
+
+
+def _straight(heading_deg: float, speed: float, n: int) -> np.ndarray:
+    """n identical 20-step paths from the origin at `speed` metres per step toward `heading_deg`."""
+    angle = math.radians(heading_deg)
+    steps = np.arange(20)[:, None] * speed * np.array([math.cos(angle), math.sin(angle)])
+    return np.repeat(steps[None], n, 0).astype(np.float32)
+
+
+def test_an_error_measured_ahead_of_one_walker_lands_ahead_of_another() -> None:
+    """The nearest goal's error is kept in the walker's heading frame: 0.3 m ahead and 0.1 m to the left of an
+    eastbound walker is 0.3 m ahead and 0.1 m to the left of a northbound one."""
+    val = _straight(0.0, 0.4, 10)
+    goals = np.repeat(val[:, -1:], 3, 1) + np.array([[2.0, 2.0], [0.3, 0.1], [-1.5, 0.0]], np.float32)
+    errors = goal_errors.fit(val, goals, obs_len=8, bins=1, true_share=0.0)
+    train = torch.as_tensor(_straight(90.0, 0.4, 4))[None]  # (1, 4, 20, 2)
+    drawn = errors.draw(train, 8, torch.Generator().manual_seed(0))
+    torch.testing.assert_close(drawn - train[:, :, -1], torch.tensor([-0.1, 0.3]).expand(1, 4, 2))
+
+
+def test_errors_come_from_walkers_of_the_same_speed_and_a_true_share_keeps_the_truth() -> None:
+    slow, fast = _straight(0.0, 0.05, 20), _straight(0.0, 1.0, 20)
+    goals = np.concatenate([slow[:, -1:] + [0.1, 0.0], fast[:, -1:] + [1.0, 0.0]])  # K = 1
+    errors = goal_errors.fit(np.concatenate([slow, fast]), goals, 8, bins=2, true_share=0.0)
+    train = torch.as_tensor(np.stack([_straight(0.0, 0.05, 3), _straight(0.0, 1.0, 3)]))  # (2, 3, 20, 2)
+    moved = errors.draw(train, 8, torch.Generator().manual_seed(1)) - train[:, :, -1]
+    torch.testing.assert_close(moved[0], torch.tensor([0.1, 0.0]).expand(3, 2))
+    torch.testing.assert_close(moved[1], torch.tensor([1.0, 0.0]).expand(3, 2))
+    kept = goal_errors.fit(np.concatenate([slow, fast]), goals, 8, bins=2, true_share=1.0)
+    assert torch.equal(kept.draw(train, 8, torch.Generator().manual_seed(1)), train[:, :, -1])
+
+
+@pytest.mark.slow
+def test_a_dr_cvae_trains_on_module_goals_and_keeps_its_fair_best_epoch(raw_tree: Path, tmp_path: Path) -> None:
+    make_scene(tmp_path / "scenes" / "zara1")
+    profile = tmp_path / "tiny.toml"
+    profile.write_text(TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes")))
+    paper = predictor_config(load_config(profile, ["cvae.epochs=2"]), "dr")
+    module = predictor_config(load_config(profile, ["cvae.epochs=2", 'goal_training.source="module"']), "dr")
+    fingerprint = lambda cfg: pipeline.resolve(cfg, ["cvae"], "zara1")[-1].fingerprint  # noqa: E731
+    unread = load_config(profile, ["cvae.epochs=2", "goal_training.true_share=0.5"])
+    assert fingerprint(paper) == fingerprint(predictor_config(unread, "dr"))  # the paper's models keep theirs
+    assert fingerprint(module) != fingerprint(paper)
+    built = pipeline.run(module, ArtifactStore(tmp_path / "artifacts"), ["cvae"], benchmark="zara1")
+    assert {"goal", "goals", "cvae"} <= set(built.new)
+    stats = built["cvae"].manifest.stats
+    log = stats["log"]
+    assert all(np.isfinite(row["val_fair_min_ade@20_m"]) for row in log)
+    best = min(log, key=lambda row: row["val_fair_min_ade@20_m"])
+    assert stats["best_epoch"] == best["epoch"] and stats["best_val_fair_min_ade@20_m"] == best["val_fair_min_ade@20_m"]
