@@ -46,6 +46,7 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "steps_3": (["goal.supervised_steps=3"], ["corner", "no_uni_map"]),
     "fixes": (["goal.target_sigma_cells=0.5", "goal.time_reversal=0.5"], []),
     "profile": ([], []),  # the profile as it is, with today's code (and --set): the chosen recipe
+    "profile_no_uni_map": ([], ["no_uni_map"]),  # the same without univ's map for uni_examples
     "fixes_steps_3": (["goal.target_sigma_cells=0.5", "goal.time_reversal=0.5", "goal.supervised_steps=3"], []),
 }
 MODE_RADII = (0, 1, 2)

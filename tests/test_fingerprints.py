@@ -34,9 +34,13 @@ CELLS += [(f"evaluate[{p},{protocol}]", p, protocol, "evaluate")
 CELLS += [("dlow[baseline]", "baseline", "paper", "dlow"), ("dlow[re]", "re", "paper", "dlow"),
           ("evaluate[baseline+dlow,paper]", "baseline+dlow", "paper", "evaluate"),
           ("evaluate[dr+dlow,paper]", "dr+dlow", "paper", "evaluate")]  # fmt: skip
-# Fields that choose a cell rather than configure one (the variant, the predictor, the protocol); the paths
+# Goal variants trained with the goal module's errors ("+module": goal_training.source = "module").
+CELLS += [("cvae[goal+module]", "goal+module", "paper", "cvae"), ("cvae[dr+module]", "dr+module", "paper", "cvae"),
+          ("cvae[re+module]", "re+module", "paper", "cvae")]  # fmt: skip
+# Fields that choose a cell rather than configure one (the variant, the predictor, the protocol, where goal
+# variants' training goals come from); the paths
 # that say where raw files lie (Reads.locations) are left out as the declarations say.
-SELECTORS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol", "dlow.variants"}
+SELECTORS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol", "dlow.variants", "goal_training.source"}
 
 
 def _perturbed(section: BaseModel, name: str) -> Any:
@@ -85,6 +89,9 @@ def _with(cfg: PipelineConfig, dotted: str) -> PipelineConfig:
 
 
 def _cell(cfg: PipelineConfig, predictor: str | None, protocol: str) -> PipelineConfig:
+    if predictor is not None and predictor.endswith("+module"):
+        predictor = predictor.removesuffix("+module")
+        cfg = cfg.model_copy(update={"goal_training": cfg.goal_training.model_copy(update={"source": "module"})})
     if predictor is not None and predictor.endswith("+dlow"):
         predictor = predictor.removesuffix("+dlow")
         cfg = cfg.model_copy(update={"dlow": cfg.dlow.model_copy(update={"variants": (predictor,)})})
@@ -176,7 +183,7 @@ def test_what_the_issue_named(base: PipelineConfig) -> None:
     baseline, goal and constant-velocity cells."""
     before, after = _fingerprints(base), _fingerprints(_with(base, "forces.fov_deg"))
     moved = {label for label in before if before[label] != after[label]}
-    assert moved == {"forces", "cvae[re]", "evaluate[re,paper]", "evaluate[re,oracle]", "dlow[re]"}
+    assert moved == {"forces", "cvae[re]", "evaluate[re,paper]", "evaluate[re,oracle]", "dlow[re]", "cvae[re+module]"}
     for dotted in (f for f in _fields(base) if f.startswith("forces.")):
         after = _fingerprints(_with(base, dotted))
         for label in (

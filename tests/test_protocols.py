@@ -52,7 +52,7 @@ def test_all_forces_recomputed_toward_the_true_goal_equal_the_stored_ones(scene:
     """Training with goals other than the true end point recomputes every step's forces toward them: with the
     true end point, that gives back what the forces stage stored, future steps included."""
     batch: SceneBatch = scene["batch"]
-    again = with_forces(batch, batch.xy[:, :, -1], ForcesConfig(), 0.4, 8)
+    again = with_forces(batch, batch.xy[:, :, -1], ForcesConfig(), 0.4, 8, ("f_dr", "f_re"))
     mask = batch.agent_mask
     torch.testing.assert_close(again.f_dr[mask], batch.f_dr[mask], atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(again.f_re[mask], batch.f_re[mask], atol=1e-4, rtol=1e-4)

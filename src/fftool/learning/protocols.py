@@ -23,7 +23,15 @@ from torch import Tensor
 from fftool.config import ForcesConfig
 from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch
-from fftool.science.social_forces import desired_speed, finite_difference_velocity, group_pairs, social_forces
+from fftool.science.social_forces import (
+    desired_direction,
+    desired_speed,
+    driving_force,
+    finite_difference_velocity,
+    group_pairs,
+    repulsive_force,
+    social_forces,
+)
 
 PROTOCOLS: Final = ("paper", "fair", "oracle")
 
@@ -63,14 +71,22 @@ def with_past_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: f
     return replace(batch, f_dr=torch.cat([f_dr, future], 2), f_re=torch.cat([f_re, future], 2))
 
 
-def with_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: float, obs_len: int) -> SceneBatch:
-    """The batch with F_dr, F_re of every step, observed and future, recomputed toward `goal` (B, A, 2): what a
-    CVAE trained with goals other than the true end point reads (its posterior reads the future's)."""
+def with_forces(
+    batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: float, obs_len: int, arrays: tuple[str, ...]
+) -> SceneBatch:
+    """The batch with the forces arrays named (f_dr, f_re) recomputed toward `goal` (B, A, 2) at every step,
+    observed and future: what a CVAE trained with goals other than the true end point reads (its posterior
+    reads the future's). Each force reads only its own constants, so a model is keyed on no other."""
     present = batch.agent_mask[:, :, None].expand(-1, -1, batch.xy.shape[2])
     velocity = finite_difference_velocity(batch.xy, present, dt_s, obs_len)
-    speed0 = desired_speed(velocity, present, obs_len, cfg)
-    f_dr, f_re = social_forces(batch.xy, present, goal, velocity, speed0, group_pairs(batch.group), cfg)
-    return replace(batch, f_dr=f_dr, f_re=f_re)
+    changed = {}
+    if "f_dr" in arrays:
+        speed0 = desired_speed(velocity, present, obs_len, cfg)
+        direction, defined = desired_direction(batch.xy, goal[:, :, None, :], cfg.goal_min_distance_m)
+        changed["f_dr"] = driving_force(velocity, direction, defined & present, speed0, cfg.tau_s)
+    if "f_re" in arrays:
+        changed["f_re"] = repulsive_force(batch.xy, present, goal, velocity, group_pairs(batch.group), cfg)
+    return replace(batch, **changed)
 
 
 def repeat_windows(batch: SceneBatch, k: int) -> SceneBatch:

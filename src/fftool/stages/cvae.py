@@ -32,7 +32,7 @@ from fftool.config import CVAEConfig, ForcesConfig, GoalTrainingConfig, Pipeline
 from fftool.learning import distributed, goal_errors
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, build_model, epoch_plan, training_loss, val_windows, validate
-from fftool.learning.features import TRAINING_READS, prepare, training_inputs, uses_forces
+from fftool.learning.features import TRAINING_READS, prepare, training_inputs
 from fftool.learning.protocols import with_forces
 from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
 from fftool.learning.training import (
@@ -106,7 +106,9 @@ class _Trainer:
             if self.errors is not None:  # goals as wrong as the goal module's, past forces toward them
                 goal = self.errors.draw(batch.xy, self.obs_len, gen)
                 if self.forces_cfg is not None and self.dt_s is not None:
-                    batch = with_forces(batch, goal, self.forces_cfg, self.dt_s, self.obs_len)
+                    batch = with_forces(
+                        batch, goal, self.forces_cfg, self.dt_s, self.obs_len, TRAINING_READS[cfg.variant]
+                    )
             prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
             warm = epoch < cfg.best_of_k_warmup_epochs  # fftool's option: the posterior first, then the full loss
             parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
@@ -145,7 +147,9 @@ class _Trainer:
         ade, fde = found.pop("min_ade"), found.pop("min_fde")
         fair = {}
         if self.val_goals is not None:
-            trained = Trained(self.model, cfg, self.forces_cfg, self.dt_s)
+            # the force constants as the saved model keeps them (evaluate's view of it): the declared ones
+            forces = None if self.forces_cfg is None else ForcesConfig.model_validate(self.forces_cfg.model_dump())
+            trained = Trained(self.model, cfg, forces, self.dt_s)
             found_ade, found_fde = fair_min_ade_fde(
                 trained, self.val, self.val_subset, self.val_goals, self.obs_len, cfg.k, cfg.seed
             )
@@ -256,9 +260,7 @@ def declare(cfg: PipelineConfig) -> Reads:
     variant = cfg.cvae.variant
     if reads_goal(variant) and cfg.goal_training.source == "module":  # the goal module's goals and errors
         artifacts = training_inputs(variant) | {"goals": None}
-        recomputed = ("forces.*",) if uses_forces(variant) else ()  # every force toward the goals it trains with
-        params = ("cvae.*", "goal_training.*", *recomputed)
-        return Reads(params=params, artifacts=artifacts, command=f" --variant {variant}")
+        return Reads(params=("cvae.*", "goal_training.*"), artifacts=artifacts, command=f" --variant {variant}")
     return Reads(params=("cvae.*",), artifacts=training_inputs(variant), command=f" --variant {variant}")
 
 
