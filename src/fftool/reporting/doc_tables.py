@@ -154,3 +154,19 @@ def zoo_table(profile: str) -> str:
     rows = [[value for key, value in row.items() if key != "id"] for row in zoo_rows(models)]
     header = ["name", "kind", "validation (best epoch), metres", "best epoch / epochs", "size"]
     return _markdown(header, rows, numeric_from=3) + f"\n{zoo_caption(models)}.\n"
+
+
+def levers_table(levers_csv: Path | str, radius: int, names: dict[str, str]) -> str:
+    """Validation goal-FDE@20 / FDE@1 per benchmark and their average for each lever of `names` (lever ->
+    label, in that order) with the mode refined over `radius` cells, from benchmarks/goal_levers.py's CSV."""
+    frame = pd.read_csv(levers_csv)
+    frame = frame[frame["mode_radius_cells"] == radius].drop_duplicates(["lever", "benchmark"], keep="last")
+    rows = []
+    for lever, label in names.items():
+        part = frame[frame["lever"] == lever].set_index("benchmark")
+        cells = [_pair(part.at[b, "val_goal_fde@20_m"], part.at[b, "val_goal_fde@1_m"]) if b in part.index else ""
+                 for b in BENCHMARKS]  # fmt: skip
+        full = len(part) == len(BENCHMARKS)
+        mean = _pair(part["val_goal_fde@20_m"].mean(), part["val_goal_fde@1_m"].mean()) if full else ""
+        rows.append([label, *cells, f"**{mean}**" if mean else ""])
+    return _markdown(["lever (validation goal-FDE@20 / FDE@1, m)", *BENCHMARKS, "average"], rows)
