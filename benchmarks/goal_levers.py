@@ -7,11 +7,10 @@ softargmax over 3² and 5² cells). No test window is read. Appends one CSV row 
 
     python benchmarks/goal_levers.py --lever before --benchmarks all --out benchmarks/results/goal_levers.csv
 
-One lever per process. "before" undoes both geometry fixes (patches: `corner` puts the crop centre back on
-a cell corner, `no_uni_map` gives uni_examples no map), "centre" only the second, so each fix is measured
-alone in the same code; the other levers are `--set` overrides on "before". "profile" is the profile file
-as it is (after the choice: the shipped recipe). The levers were measured against pipelines/cpu.toml as it
-was before the choice was written into it (goal version 2, docs/experiments/goal-levers.md).
+One lever per process. "before" puts the crop centre back on a cell corner (patch `corner`) and the mode
+back on the argmax cell; "centre" only the second; the other levers change one thing from "before".
+"profile" is the profile file as it is (the shipped recipe), "profile_uni_map" the same with univ's map for
+uni_examples (patch `uni_map`). docs/experiments/goal-levers.md has the results and the rule.
 """
 
 from __future__ import annotations
@@ -36,18 +35,16 @@ from fftool.learning.training import generator
 from fftool.pipeline import Runtime
 from fftool.science import heatmaps
 
-# name -> (--set overrides on the profile, patches that undo a geometry fix)
+# name -> (--set overrides on the profile, patches that undo or add a geometry choice). The levers were chosen
+# against the profile as it was before (mode: the argmax cell), which the first four restore.
+_ARGMAX = "goals.mode_radius_cells=0"
 LEVERS: dict[str, tuple[list[str], list[str]]] = {
-    "before": ([], ["corner", "no_uni_map"]),
-    "centre": ([], ["no_uni_map"]),
-    "uni_map": ([], ["corner"]),
-    "target_sigma_0.5": (["goal.target_sigma_cells=0.5"], ["corner", "no_uni_map"]),
-    "reversal_0.5": (["goal.time_reversal=0.5"], ["corner", "no_uni_map"]),
-    "steps_3": (["goal.supervised_steps=3"], ["corner", "no_uni_map"]),
-    "fixes": (["goal.target_sigma_cells=0.5", "goal.time_reversal=0.5"], []),
-    "profile": ([], []),  # the profile as it is, with today's code (and --set): the chosen recipe
-    "profile_no_uni_map": ([], ["no_uni_map"]),  # the same without univ's map for uni_examples
-    "fixes_steps_3": (["goal.target_sigma_cells=0.5", "goal.time_reversal=0.5", "goal.supervised_steps=3"], []),
+    "before": ([_ARGMAX], ["corner"]),
+    "centre": ([_ARGMAX], []),
+    "target_sigma_0.5": ([_ARGMAX, "goal.target_sigma_cells=0.5"], ["corner"]),
+    "reversal_0.5": ([_ARGMAX, "goal.time_reversal=0.5"], ["corner"]),
+    "profile": ([], []),  # the profile as it is: the chosen recipe
+    "profile_uni_map": ([], ["uni_map"]),  # the same with univ's map for uni_examples (Goal-SAR's choice)
 }
 MODE_RADII = (0, 1, 2)
 
@@ -56,8 +53,8 @@ def _patch(name: str) -> None:
     if name == "corner":
         heatmaps.world_to_cells.__code__ = _corner_world_to_cells.__code__
         heatmaps.cells_to_world.__code__ = _corner_cells_to_world.__code__
-    elif name == "no_uni_map":
-        scenes.SOURCE_SCENE["uni_examples"] = None
+    elif name == "uni_map":
+        scenes.SOURCE_SCENE["uni_examples"] = "univ"
     else:
         raise SystemExit(f"unknown patch {name!r}")
 

@@ -80,9 +80,9 @@ LEAVE_ONE_OUT: Final[dict[str, dict[str, tuple[tuple[str, str], ...]]]] = _leave
 
 # Scene geometry (scenes/<scene>/reference.png + world_to_pixel.txt) for each source. crowds_zara03
 # has no image of its own; the scenes README finds its trajectories plausible on the zara2 image
-# (same camera), so it shares zara2's map. uni_examples has no image; its trajectories cross objects of the
-# students03 image (probably another view), but it shares univ's world frame and campus, and Goal-SAR gives it
-# univ's map: so does fftool (a measured choice, docs/goal.md).
+# (same camera), so it shares zara2's map. uni_examples has no image: its trajectories cross objects of the
+# students03 image (probably another view), so it has no map. Goal-SAR gives it univ's; on univ's validation
+# that made no difference (docs/experiments/goal-levers.md).
 SOURCE_SCENE: Final[dict[str, str | None]] = {
     "biwi_eth": "eth",
     "biwi_hotel": "hotel",
@@ -91,7 +91,7 @@ SOURCE_SCENE: Final[dict[str, str | None]] = {
     "crowds_zara03": "zara2",
     "students001": "univ",
     "students003": "univ",
-    "uni_examples": "univ",
+    "uni_examples": None,
 }
 SCENES: Final[tuple[str, ...]] = BENCHMARKS  # one scene folder per benchmark, named after it
 
