@@ -30,7 +30,8 @@ from fftool.config import load_config
 from fftool.dataset import scenes
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.learning import goal_model
-from fftool.learning.batches import load_agent_windows, load_scene_maps
+from fftool.learning.batches import load_agent_windows
+from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import generator
 from fftool.pipeline import Runtime
 from fftool.science import heatmaps
@@ -45,6 +46,11 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "reversal_0.5": ([_ARGMAX, "goal.time_reversal=0.5"], ["corner"]),
     "profile": ([], []),  # the profile as it is: the chosen recipe
     "profile_uni_map": ([], ["uni_map"]),  # the same with univ's map for uni_examples (Goal-SAR's choice)
+    # Capacity, against "profile": 1.5× the widths (2.25× the multiply-adds), and three supervised output maps.
+    "wide_1.5": (["goal.widths=[12, 24, 24, 48]"], []),
+    "supervised_3": (["goal.supervised_steps=3"], []),
+    # Input, against "profile": the training part's occupancy of the same place as one more map channel.
+    "scene_prior": (['goal.scene_prior="occupancy"'], []),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -81,7 +87,7 @@ def measure(lever: str, benchmark: str, profile: Path, extra: list[str], root: P
     goal, windows, maps = built["goal"], built["windows"], built["maps"]
     device = torch.device("cpu")
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
-    scene_maps = load_scene_maps(maps)
+    scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg)
     val = load_agent_windows(windows, benchmark, "val")
     obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
     fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len)
@@ -110,7 +116,7 @@ def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len) -> d
     """Goal-FDE@K and @1 per mode radius, as `goal_model.evaluate` computes them, with the TTST draws made once:
     the mode takes no random draw, so only goal 1 differs between radii."""
     gen = generator(goal_cfg.seed, torch.device("cpu"))
-    scene = scene_maps.index_of_sources(val.source)
+    scene = goal_scene_index(scene_maps, val, goal_cfg, cross_fit=False)
     errors: dict[int, list[torch.Tensor]] = {radius: [] for radius in MODE_RADII}
     for start in range(0, len(val), 1024):
         xy = torch.as_tensor(val.xy[start : start + 1024], dtype=torch.float32)

@@ -145,7 +145,9 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert set(per_seed.loc[per_seed["grid_seed"] == 0, "artifact"]) == {f"evaluate/{f}" for f in folders.values()}
     table3 = pd.read_csv(seeds_out / "table3_fde.csv").set_index("method")
     values = [float(v) for v in table3.loc["ForceFormer-Dr", "zara1 per seed"].split(";")]
-    assert values == pytest.approx(per_seed.query("variant == 'dr'").sort_values("grid_seed")["min_fde"].tolist(), abs=1e-5)
+    assert values == pytest.approx(
+        per_seed.query("variant == 'dr'").sort_values("grid_seed")["min_fde"].tolist(), abs=1e-5
+    )
     assert table3.loc["ForceFormer-Dr", "zara1"] == pytest.approx(np.mean(values), abs=1e-5)
     assert (
         " ±" in (seeds_out / "table3_fde.md").read_text() and "grid seeds 0, 1" in (seeds_out / "report.md").read_text()

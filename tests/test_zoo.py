@@ -4,6 +4,7 @@ code computes, load by name, and `reproduce` then trains nothing."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from fftool import api, pipeline, zoo
+from fftool.artifacts.hashing import fingerprint
 from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import load_config, predictor_config
@@ -164,6 +166,32 @@ def test_rekey_moves_models_whose_code_version_alone_changed(
     assert not zoo.orphans(zoo.shipped("tiny"))
     moved = zoo.shipped("tiny")[0].artifact.manifest
     assert "rekeyed_from" in moved.stats
+
+
+def test_rekey_moves_a_model_trained_before_an_option_existed_when_the_profile_leaves_it_at_its_default(
+    tiny: dict[str, Path],
+) -> None:
+    """A shipped goal U-Net whose manifest lacks `scene_prior` (written before the option existed) is orphaned;
+    re-keyed, since the profile keeps the default, the behaviour it was trained with; refused once it does not."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    unet = next(m for m in zoo.shipped("tiny") if m.kind == "goal").artifact
+    manifest = json.loads((unet.path / "manifest.json").read_text())
+    del manifest["params"]["scene_prior"]
+    manifest["fingerprint"] = fingerprint(
+        "goal", pipeline.STAGES["goal"].version, manifest["params"], manifest["inputs"]
+    )
+    older = unet.path.with_name(manifest["fingerprint"][:16])
+    unet.path.rename(older)
+    (older / "manifest.json").write_text(json.dumps(manifest))
+    assert list(zoo.orphans(zoo.shipped("tiny"))) == ["tiny/zara1/goal-unet"]
+    profile = tiny["pipelines"] / "tiny.toml"
+    text = profile.read_text()
+    profile.write_text(text.replace("[goal]\n", '[goal]\nscene_prior = "occupancy"\n'))
+    with pytest.raises(FftoolError, match="trained with other parameters \\(scene_prior\\)"):
+        zoo.rekey("tiny")
+    profile.write_text(text)
+    assert zoo.rekey("tiny") == ["tiny/zara1/goal-unet"]
+    assert not zoo.orphans(zoo.shipped("tiny"))
 
 
 def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_made(tiny: dict[str, Path]) -> None:

@@ -183,6 +183,9 @@ class GoalConfig(_Section):
     train_stride: int = Field(5, gt=0)
     max_train: int = Field(0, ge=0)  # 0 = all
     augment: bool = True  # random rotation in [0, 2π) and mirror, applied to map and positions alike
+    # An input channel of where the training part's pedestrians walked in the same place (learning/scene_prior.py;
+    # not in Goal-SAR).
+    scene_prior: Literal["none", "occupancy"] = "none"
     # Share of training windows played backwards (the goal becomes the first observed position; Goal-SAR: 0.5).
     time_reversal: float = Field(0.0, ge=0, le=1)
     val_max: int = Field(1000, ge=0)  # validation agent-windows per epoch (0 = all)

@@ -247,11 +247,23 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     return packed
 
 
+def _default(section: str | None, key: str) -> object:
+    """The default of a fingerprint record's key: a bare key is the stage's own section's, a dotted one names
+    its section."""
+    name, _, bare = key.rpartition(".")
+    owner = name or section
+    if owner is None:
+        return None
+    return type(getattr(PipelineConfig(), owner))().model_dump(mode="json").get(bare)
+
+
 def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | None = None) -> list[str]:
     """Move orphaned shipped models to the fingerprints the code computes now, when only code versions or
-    upstream fingerprints changed: a model whose recorded parameters differ from today's is refused (it was
-    trained on something else: retrain it). The manifest's fingerprint, inputs and sources are rewritten and
-    `rekeyed_from` is added to its stats; the names re-keyed."""
+    upstream fingerprints changed, or parameters were added that the profile leaves at their defaults (a new
+    option's default is the behaviour the model was trained with): a model whose recorded parameters differ
+    from today's otherwise is refused (it was trained on something else: retrain it). The manifest's
+    fingerprint, params, inputs and sources are rewritten and `rekeyed_from` is added to its stats; the names
+    re-keyed."""
     from dataclasses import replace
 
     cfg = profile_config(profile)
@@ -262,13 +274,25 @@ def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | No
         manifest = model.artifact.manifest
         if item.fingerprint == manifest.fingerprint:
             continue
-        if item.params != manifest.params:
-            keys = {*item.params, *manifest.params}
-            changed = sorted(k for k in keys if item.params.get(k) != manifest.params.get(k))
+        keys = {*item.params, *manifest.params}
+        changed = sorted(
+            k
+            for k in keys
+            if item.params.get(k) != manifest.params.get(k)
+            and not (k not in manifest.params and item.params[k] == _default(item.stage.section, k))
+        )
+        if changed:
             raise FftoolError(f"{model.name}: trained with other parameters ({', '.join(changed)}); retrain it")
         check(model, zoo)
         stats = manifest.stats | {"rekeyed_from": manifest.fingerprint}
-        new = replace(manifest, fingerprint=item.fingerprint, inputs=item.inputs, sources=item.sources, stats=stats)
+        new = replace(
+            manifest,
+            fingerprint=item.fingerprint,
+            params=item.params,
+            inputs=item.inputs,
+            sources=item.sources,
+            stats=stats,
+        )
         zoo.adopt(model.artifact, new)
         zoo.remove(model.artifact)
         moved.append(model.name)

@@ -21,7 +21,7 @@ from fftool.artifacts.store import Artifact
 from fftool.config import GoalConfig, GoalsConfig, PipelineConfig
 from fftool.errors import UsageError
 from fftool.learning import distributed
-from fftool.learning.batches import AgentWindows, SceneMaps, load_agent_windows, load_scene_maps
+from fftool.learning.batches import AgentWindows, SceneMaps, load_agent_windows
 from fftool.learning.goal_model import (
     build_model,
     evaluate,
@@ -30,6 +30,7 @@ from fftool.learning.goal_model import (
     input_channels,
     supervised_steps,
 )
+from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import (
     epoch_seed,
     fit,
@@ -155,7 +156,7 @@ def _trainer(
     val = load_agent_windows(windows, benchmark, "val")
     if cfg.val_max and len(val) > cfg.val_max:
         val = val.subset(validation_subset(len(val), cfg.val_max, cfg.seed))
-    scene_maps = load_scene_maps(maps).to(device)
+    scene_maps = load_goal_scenes(maps, windows, benchmark, cfg).to(device)
     model = build_model(cfg, input_channels(cfg, obs_len, scene_maps.channels)).to(device)
     optimizer = make_optimizer(model, cfg.optimizer, cfg.lr, cfg.weight_decay)
     return _Trainer(
@@ -164,9 +165,9 @@ def _trainer(
         model=model,
         optimizer=optimizer,
         train_xy=torch.as_tensor(train.xy, dtype=torch.float32),
-        train_scene=scene_maps.index_of_sources(train.source),
+        train_scene=goal_scene_index(scene_maps, train, cfg, cross_fit=True),
         val=val,
-        val_scene=scene_maps.index_of_sources(val.source),
+        val_scene=goal_scene_index(scene_maps, val, cfg, cross_fit=False),
         maps=scene_maps,
         obs_len=obs_len,
         pred_len=pred_len,

@@ -19,9 +19,10 @@ import torch
 from fftool.artifacts.schema import COMMANDS, CV_GOALS_FILE, GOALS_FILE, GOALS_INDEX_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import GoalsConfig, PipelineConfig
-from fftool.learning.batches import load_agent_windows, load_scene_maps
+from fftool.learning.batches import load_agent_windows
 from fftool.learning.goal_model import goal_batches, load_model
 from fftool.learning.protocols import constant_velocity
+from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import generator
 from fftool.science.metrics import goal_fde
 from fftool.stages.contract import Reads, Stage, StageContext
@@ -47,14 +48,14 @@ def sample(
         device: torch device. on_progress: called with (part, done, total).
     """
     model, goal_cfg, _ = load_model(goal, device)
-    scene_maps = load_scene_maps(maps).to(device)
+    scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg).to(device)
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
     gen = generator(cfg.seed, device)
     all_goals, all_cv, index, parts = [], [], [], {}
     for part in cfg.parts:
         data = load_agent_windows(windows, benchmark, part)
-        scene = scene_maps.index_of_sources(data.source)
+        scene = goal_scene_index(scene_maps, data, goal_cfg, cross_fit=False)
         fde = {"goal_k": [], "goal_1": [], "cv_1": [], "cv_k": []}
         batches = goal_batches(model, data, scene, scene_maps, goal_cfg, cfg, gen, obs_len, pred_len, device, 256)
         for done, xy, goals in batches:
