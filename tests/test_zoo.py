@@ -153,6 +153,12 @@ def test_a_profile_change_orphans_the_models_and_rekey_refuses_other_parameters(
         zoo.rekey("tiny")
 
 
+def test_a_failed_pack_leaves_no_models_folder(tiny: dict[str, Path]) -> None:
+    with pytest.raises(FftoolError, match="has no goal model of zara1"):
+        zoo.pack(ArtifactStore(tiny["tmp"] / "empty"), "tiny", ["zara1"])
+    assert not tiny["models"].exists()
+
+
 def test_rekey_moves_models_whose_code_version_alone_changed(
     tiny: dict[str, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -220,9 +220,6 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     """Copy a benchmark's trained models from `source` into `models/<profile>/` (all of them or nothing), and
     remove the shipped models they replace (the same name, another fingerprint); the names packed."""
     cfg = profile_config(profile)
-    folder = (root or models_root()) / profile
-    folder.mkdir(parents=True, exist_ok=True)
-    zoo = ArtifactStore(folder)
     chosen = list(benchmarks)
     plan = []
     for benchmark in chosen:
@@ -236,6 +233,9 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
                 )
             source.check_inputs({kind: artifact})
             plan.append(artifact)
+    folder = (root or models_root()) / profile  # made only once every model is found: a failed pack leaves nothing
+    folder.mkdir(parents=True, exist_ok=True)
+    zoo = ArtifactStore(folder)
     old = {m.name: m for m in shipped(profile, chosen, root)}
     packed = []
     for artifact in plan:

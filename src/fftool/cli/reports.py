@@ -221,8 +221,11 @@ def plot(
     from fftool.ui import log
 
     if animate is not None:
+        from fftool.reporting.animation import FORMATS
         from fftool.reporting.animation import check_out as check_animation
 
+        if animate not in FORMATS:  # a format, never a path: the file is named inside --out
+            raise UsageError(f"--animate {animate}: expected one of {', '.join(FORMATS)}")
         for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
             check_animation(out / f"animation_{benchmark}.{animate}")
     predictors = [check_predictor(v.strip()) for v in variants.split(",") if v.strip()]

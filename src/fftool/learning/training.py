@@ -25,6 +25,7 @@ from fftool.artifacts.schema import TENSORBOARD_DIR
 from fftool.errors import IntegrityError
 from fftool.learning import distributed
 from fftool.learning.batches import SceneSet
+from fftool.outputs import replacing_file
 from fftool.ui import warn
 
 # What loading a readable checkpoint into objects it does not fit raises (missing or extra keys, other
@@ -130,15 +131,10 @@ def lr_factor(
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    """Write atomically: a killed process never leaves a truncated checkpoint. The partial file is named
-    after the process, so two processes never write into or rename each other's."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f"{path.name}.partial-{os.getpid()}")
-    try:
-        torch.save(state, partial)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)  # left only when saving failed
+    """Write atomically (`outputs.replacing_file`): a killed process never leaves a truncated checkpoint, and
+    two processes never write into or rename each other's temporary file."""
+    with replacing_file(path) as unfinished:
+        torch.save(state, unfinished)
 
 
 def _load(path: Path, device: torch.device) -> dict[str, Any] | None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import platform
-import shutil
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -26,6 +25,7 @@ from fftool import __version__, pipeline
 from fftool.artifacts.store import ArtifactStore
 from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
 from fftool.errors import UsageError
+from fftool.outputs import replacing_folder
 from fftool.paper import PREDICTORS
 from fftool.reporting import claims, score_plots, scores, tables
 from fftool.stages.evaluate import METRIC_DEFINITIONS
@@ -202,12 +202,26 @@ def check_report_folder(out_dir: Path, artifact_root: Path, reports_dir: Path) -
 
 
 def _check_replaceable(target: Path, flag: str) -> None:
-    if target.exists() and not target.is_dir():
-        raise UsageError(f"{flag}: refused, it is a file; give a folder")
-    if target.is_dir() and any(target.iterdir()) and not (target / REPORT_MARKER).is_file():
+    """Only a folder that is new, empty, or a report whose marker lists every file in it may be replaced:
+    anything a user added to a report folder is named and kept."""
+    if target.is_symlink() or (target.exists() and not target.is_dir()):
+        raise UsageError(f"{flag}: refused, it is a file or a link; give a folder")
+    if not target.is_dir() or not any(target.iterdir()):
+        return
+    marker = target / REPORT_MARKER
+    if not marker.is_file():
         raise UsageError(
             f"{flag}: refused, the folder holds files fftool did not write (no {REPORT_MARKER} marker); "
             "give a new or empty folder"
+        )
+    written = set(marker.read_text().splitlines()[1:])
+    found = {path.relative_to(target).as_posix() for path in target.rglob("*") if not path.is_dir()}
+    foreign = sorted(found - written - {REPORT_MARKER})
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise UsageError(
+            f"{flag}: refused, the report folder holds files its report did not write ({shown}); "
+            "move them out or give another folder"
         )
 
 
@@ -239,11 +253,9 @@ def write_report(
     ]
     claimed = claims.claims_table(grid, cfg.evaluate.protocol)  # all five benchmarks only
     built += [claimed] if claimed is not None else []
-    partial = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
-    shutil.rmtree(partial, ignore_errors=True)
-    try:
+    _check_replaceable(out_dir, f"report folder {out_dir}")
+    with replacing_folder(out_dir) as partial:
         tables.write(built, partial, _preamble(command, seconds, results), _definitions())
-        (partial / REPORT_MARKER).write_text(f"written by fftool {__version__}; the next report replaces this folder\n")
         pd.DataFrame(rows).to_csv(partial / "results.csv", index=False)
         goal_module = goal_module_rows(cfg, store, results)
         if goal_module:
@@ -252,16 +264,10 @@ def write_report(
         drawn = [score_plots.scores_figure(grid, partial / "scores.png", title), *(draw(partial) if draw else [])]
         with (partial / "report.md").open("a") as report:
             report.writelines(f"\n![{path.stem}]({path.name})\n" for path in drawn)
-        old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+        written = sorted(path.relative_to(partial).as_posix() for path in partial.rglob("*") if not path.is_dir())
+        heading = f"written by fftool {__version__}; the next report replaces this folder and these files:"
+        (partial / REPORT_MARKER).write_text("\n".join([heading, *written]) + "\n")
         _check_replaceable(out_dir, f"report folder {out_dir}")  # it may have changed during a long run
-        if out_dir.is_dir() and not any(out_dir.iterdir()):
-            out_dir.rmdir()  # an empty folder the user made for the report
-        if out_dir.exists():
-            out_dir.rename(old)
-        partial.rename(out_dir)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(partial, ignore_errors=True)
     return out_dir / "report.md"
 
 

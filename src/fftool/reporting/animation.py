@@ -11,7 +11,6 @@ never replaced.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ from fftool.dataset.scene_images import SceneImage, project, read_scene
 from fftool.dataset.scenes import SOURCE_SCENE
 from fftool.errors import FftoolError, UsageError
 from fftool.learning.batches import AgentWindows, load_agent_windows
+from fftool.outputs import replacing_file
 from fftool.reporting import plots
 
 FORMATS = ("gif", "mp4")
@@ -185,13 +185,8 @@ def render(movie: Movie, dpi: int = 72) -> list[np.ndarray]:
 def write(images: Sequence[np.ndarray], out: Path, fps: float) -> Path:
     """Frames as a GIF or MP4 (by out's suffix), atomically; an existing file fftool did not write is refused."""
     kind = check_out(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.partial-{os.getpid()}")
-    try:
+    with replacing_file(out) as partial:
         (_write_gif if kind == "gif" else _write_mp4)(images, partial, fps)
-        os.replace(partial, out)
-    finally:
-        partial.unlink(missing_ok=True)
     return out
 
 

@@ -7,7 +7,6 @@ when the scene folder has one (axes are then image pixels), else the axes are wo
 
 from __future__ import annotations
 
-import os
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -28,6 +27,7 @@ from fftool.dataset.scene_images import SceneImage, project, read_scene
 from fftool.dataset.scenes import SOURCE_SCENE
 from fftool.errors import FftoolError, UsageError
 from fftool.learning.batches import AgentWindows, load_agent_windows
+from fftool.outputs import replacing_file
 from fftool.paper import PAPER_NAMES
 from fftool.science.bootstrap import Resampling, binned_mean_intervals, window_draws, windows_of
 
@@ -38,13 +38,10 @@ COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff
 def save_figure(fig: plt.Figure, out: Path, **savefig: object) -> Path:
     """Write `fig` as PNG atomically; never overwrite a file fftool did not write (UsageError, exit 2)."""
     _check_replaceable(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.partial-{os.getpid()}")
     try:
-        fig.savefig(partial, format="png", metadata={"Software": SOFTWARE}, **savefig)
-        os.replace(partial, out)
+        with replacing_file(out) as partial:
+            fig.savefig(partial, format="png", metadata={"Software": SOFTWARE}, **savefig)
     finally:
-        partial.unlink(missing_ok=True)
         plt.close(fig)
     return out
 

@@ -8,7 +8,6 @@ figures carry theirs (plots.save_figure): a user's own file is never overwritten
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import pyarrow.parquet as pq
 from fftool import __version__
 from fftool.dataset.scene_images import SceneImage, project
 from fftool.errors import UsageError
+from fftool.outputs import replacing_file
 
 MARK = b"fftool.predictions"  # Parquet metadata key: the file is a prediction fftool wrote and may replace
 
@@ -48,13 +48,8 @@ def write_predictions(table: pd.DataFrame, out: Path, about: Mapping[str, object
     check_out(out)
     arrow = pa.Table.from_pandas(table, preserve_index=False)
     meta = dict(arrow.schema.metadata or {}) | {MARK: json.dumps({"fftool": __version__, **about}).encode()}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.partial-{os.getpid()}")
-    try:
+    with replacing_file(out) as partial:
         pq.write_table(arrow.replace_schema_metadata(meta), partial)
-        os.replace(partial, out)
-    finally:
-        partial.unlink(missing_ok=True)
     return out
 
 

@@ -15,7 +15,6 @@ comparable across scenes.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
@@ -30,6 +29,7 @@ from fftool.config import MapsConfig, PipelineConfig
 from fftool.dataset.custom import load_dataset
 from fftool.dataset.scene_images import SceneImage, apply_homography, read_homography, read_image, read_scene
 from fftool.dataset.scenes import SCENES
+from fftool.outputs import replacing_file
 from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "maps"
@@ -114,10 +114,11 @@ def _check_figure(
     import matplotlib.pyplot as plt
 
     fig = _check_figure_drawn(scene, raster, images, transform)
-    partial = out.with_name(f".{out.name}.partial")
-    fig.savefig(partial, format="png")
-    plt.close(fig)
-    os.replace(partial, out)
+    try:
+        with replacing_file(out) as partial:
+            fig.savefig(partial, format="png")
+    finally:
+        plt.close(fig)
 
 
 def _check_figure_drawn(scene: str, raster: np.ndarray, images: tuple[np.ndarray, np.ndarray], transform: dict) -> Any:
