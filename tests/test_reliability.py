@@ -180,6 +180,15 @@ def _out_user_folder(w: World, mp: pytest.MonkeyPatch) -> Act:
     return _ablate(w, w.user_folder())
 
 
+def _out_report_with_user_notes(w: World, mp: pytest.MonkeyPatch) -> Act:
+    """A previous report the user wrote notes into: once deleted with the report, now refused and kept."""
+    shutil.copytree(w.root / "reports" / "tiny", w.base / "report")
+    (w.base / "report" / "notes.md").write_text("what I saw\n")
+    (w.base / "report" / "my_plots").mkdir()
+    (w.base / "report" / "my_plots" / "a.png").write_bytes(b"mine")
+    return _ablate(w, w.base / "report")
+
+
 def _out_dot_in_user_folder(w: World, mp: pytest.MonkeyPatch) -> Act:
     mp.chdir(w.user_folder())
     return _ablate(w, ".")
@@ -447,6 +456,8 @@ FAILURES = [
     # deletion / overwrite: refused before any work, exit 2
     Fail("out-user-folder", "ablate --out a folder of the user's files", _out_user_folder, 2,
          ("--out {base}/mine", "holds files fftool did not write", ".fftool-report")),
+    Fail("out-report-with-user-files", "ablate --out a previous report holding the user's notes",
+         _out_report_with_user_notes, 2, ("--out {base}/report", "did not write (my_plots/a.png, notes.md)")),
     Fail("out-dot-cwd", "ablate --out . from inside a user's folder", _out_dot_in_user_folder, 2,
          ("--out .", "the current directory")),
     Fail("out-root", "ablate --out the artifact root", _out_root, 2, ("--out {root}", "the artifact root")),
@@ -574,11 +585,9 @@ def _ablate_into_new_folder(w: World, mp: pytest.MonkeyPatch) -> Iterator[None]:
 
 def _ablate_over_previous_report(w: World, mp: pytest.MonkeyPatch) -> Iterator[None]:
     shutil.copytree(w.root / "reports" / "tiny", w.base / "report")
-    (w.base / "report" / "stale.csv").write_text("from an older run\n")
     yield
     _ok(invoke(*_ablate(w, w.base / "report").args))
     _report_written(w.base / "report")
-    assert not (w.base / "report" / "stale.csv").exists()
 
 
 def _ablate_default_report(w: World, mp: pytest.MonkeyPatch) -> Iterator[None]:

@@ -56,17 +56,18 @@ def test_a_checkpoint_resumes_after_its_last_epoch(tmp_path: Path, warnings: lis
     assert warnings == [] and sorted(p.name for p in tmp_path.iterdir()) == ["last.pt"]
 
 
-def test_the_partial_file_belongs_to_its_process(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    other = tmp_path / "last.pt.partial-1"  # another process, half-way through its own save
+def test_the_temporary_file_belongs_to_its_save(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    other = tmp_path / ".last.pt.x1y2z3.partial"  # another process, half-way through its own save
     other.write_bytes(b"half")
     written: list[str] = []
     save = torch.save
     monkeypatch.setattr(torch, "save", lambda obj, f: (written.append(Path(f).name), save(obj, f)))
     save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
-    assert written == [f"last.pt.partial-{os.getpid()}"]
+    save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
+    assert len(set(written)) == 2 and all(n.startswith(".last.pt.") and n.endswith(".partial") for n in written)
     assert torch.load(tmp_path / "last.pt", weights_only=True) == {"epoch": 0}
     assert other.read_bytes() == b"half"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt", "last.pt.partial-1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".last.pt.x1y2z3.partial", "last.pt"]
 
 
 def test_a_failed_save_keeps_the_old_checkpoint_and_no_partial_file(
