@@ -67,3 +67,22 @@ def test_a_dr_cvae_trains_on_module_goals_and_keeps_its_fair_best_epoch(raw_tree
     assert all(np.isfinite(row["val_fair_min_ade@20_m"]) for row in log)
     best = min(log, key=lambda row: row["val_fair_min_ade@20_m"])
     assert stats["best_epoch"] == best["epoch"] and stats["best_val_fair_min_ade@20_m"] == best["val_fair_min_ade@20_m"]
+
+
+def test_a_dlow_sampler_over_a_module_trained_cvae_keeps_its_fair_best_epoch(raw_tree: Path, tmp_path: Path) -> None:
+    """DLow over a goal variant trained for the module's goals: the goals artifact read and declared, training
+    goals moved the same way, the best epoch the fair one; over the paper's CVAE nothing of that is read."""
+    make_scene(tmp_path / "scenes" / "zara1")
+    profile = tmp_path / "tiny.toml"
+    profile.write_text(TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes")))
+    sets = ["cvae.epochs=1", "dlow.epochs=2"]
+    module = predictor_config(load_config(profile, [*sets, 'goal_training.source="module"']), "dr")
+    paper = predictor_config(load_config(profile, sets), "dr")
+    reads = lambda cfg: pipeline.resolve(cfg, ["dlow"], "zara1")[-1].reads  # noqa: E731
+    assert "goals" in reads(module).artifacts and "goal_training.*" in reads(module).params
+    assert "goals" not in reads(paper).artifacts and "goal_training.*" not in reads(paper).params
+    built = pipeline.run(module, ArtifactStore(tmp_path / "artifacts"), ["dlow"], benchmark="zara1")
+    stats = built["dlow"].manifest.stats
+    best = min(stats["log"], key=lambda row: row["val_fair_min_ade@20_m"])
+    assert stats["best_epoch"] == best["epoch"] and stats["best_val_fair_min_ade@20_m"] == best["val_fair_min_ade@20_m"]
+    assert built["dlow"].manifest.sources["goals"] == built["goals"].fingerprint

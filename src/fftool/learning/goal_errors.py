@@ -15,6 +15,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from fftool.artifacts.store import Artifact
+from fftool.config import ForcesConfig, GoalTrainingConfig
+from fftool.learning.batches import SceneBatch, SceneSet
+from fftool.learning.features import TRAINING_READS
+from fftool.learning.protocols import with_forces
+from fftool.learning.sampling import load_sampled_goals
+
 _STANDING_M = 1e-3  # a last observed step shorter than this has no heading: the frame is the world's
 
 
@@ -84,3 +91,37 @@ def fit(val_xy: np.ndarray, val_goals: np.ndarray, obs_len: int, bins: int, true
     empty = count == 0
     start, count = torch.where(empty, 0, start), torch.where(empty, len(xy), count)
     return GoalErrors(_to_frame(nearest, unit)[order], edges, start, count, float(true_share))
+
+
+@dataclass(frozen=True)
+class ModuleGoals:
+    """What a goal variant trained for the goal module's goals uses beside its data: the module's errors, to
+    move each training goal by, and its K goals of the validation windows, for the fair validation."""
+
+    errors: GoalErrors
+    val_goals: np.ndarray  # (M, K, 2), aligned with the validation scenes' agent-windows
+
+    def move(
+        self,
+        batch: SceneBatch,
+        obs_len: int,
+        gen: torch.Generator,
+        forces_cfg: ForcesConfig | None,
+        dt_s: float | None,
+        variant: str,
+    ) -> tuple[SceneBatch, Tensor]:
+        """The training goals (B, A, 2) of a batch on the errors' device, and the batch with the forces the
+        variant reads recomputed toward them (observed and future)."""
+        goal = self.errors.draw(batch.xy, obs_len, gen)
+        if forces_cfg is not None and dt_s is not None:
+            batch = with_forces(batch, goal, forces_cfg, dt_s, obs_len, TRAINING_READS[variant])
+        return batch, goal
+
+
+def module_goals(
+    goals: Artifact, val: SceneSet, benchmark: str, obs_len: int, cfg: GoalTrainingConfig, device: torch.device
+) -> ModuleGoals:
+    """The goals artifact's validation goals and the errors fitted on them."""
+    val_goals = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
+    fitted = fit(val.data.xy, val_goals, obs_len, cfg.speed_bins, cfg.true_share)
+    return ModuleGoals(fitted.to(device), val_goals)

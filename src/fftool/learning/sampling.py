@@ -157,13 +157,16 @@ def fair_min_ade_fde(
     obs_len: int,
     k: int,
     seed: int,
+    sampler: QNet | None = None,
 ) -> tuple[float, float]:
     """minADE_K and minFDE_K (metres, per agent) of the windows `windows` of `scenes` under the fair protocol:
-    sample k decodes sampled goal k (sampled_goals (M, K, 2), aligned with scenes.data), as `evaluate` does."""
+    sample k decodes sampled goal k (sampled_goals (M, K, 2), aligned with scenes.data), as `evaluate` does;
+    with a DLow sampler, from its K codes."""
     model, cfg = trained.model, trained.config
     device = next(model.parameters()).device
     evaluate = EvaluateConfig(protocol="fair", k=k, seed=seed, batch_windows=cfg.batch_windows)
-    predictor = Predictor(evaluate, trained, sampled_goals, obs_len, scenes.data.xy.shape[1] - obs_len, device)
+    pred_len = scenes.data.xy.shape[1] - obs_len
+    predictor = Predictor(evaluate, trained, sampled_goals, obs_len, pred_len, device, sampler)
     plan = scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(seed))
     ade, fde, count = 0.0, 0.0, 0
     for batch, _, futures in sample_batches(predictor, scenes, plan, predictor.goals, device):

@@ -33,8 +33,7 @@ from fftool.learning import distributed, goal_errors
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, build_model, epoch_plan, training_loss, val_windows, validate
 from fftool.learning.features import TRAINING_READS, prepare, training_inputs
-from fftool.learning.protocols import with_forces
-from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
+from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
     epoch_seed,
     fit,
@@ -73,8 +72,7 @@ class _Trainer:
     dt_s: float | None
     per_epoch: int  # training windows per epoch
     device: torch.device
-    errors: goal_errors.GoalErrors | None = None  # the goal module's errors, to move training goals by
-    val_goals: np.ndarray | None = None  # (M, K, 2) the goal module's goals of `val`: the fair validation
+    module: goal_errors.ModuleGoals | None = None  # training goals as wrong as the module's; fair validation
     first_steps: list[int] = field(init=False)  # each epoch's first optimizer step; [-1]: the schedule's budget
     net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
 
@@ -103,12 +101,8 @@ class _Trainer:
                 mine, share = distributed.shard(members)
                 batch, weight = batch.map(partial(_rows, torch.as_tensor(mine))), share / distributed.world_size()
             batch, goal = batch.to(device), None
-            if self.errors is not None:  # goals as wrong as the goal module's, past forces toward them
-                goal = self.errors.draw(batch.xy, self.obs_len, gen)
-                if self.forces_cfg is not None and self.dt_s is not None:
-                    batch = with_forces(
-                        batch, goal, self.forces_cfg, self.dt_s, self.obs_len, TRAINING_READS[cfg.variant]
-                    )
+            if self.module is not None:  # goals as wrong as the goal module's, forces toward them
+                batch, goal = self.module.move(batch, self.obs_len, gen, self.forces_cfg, self.dt_s, cfg.variant)
             prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
             warm = epoch < cfg.best_of_k_warmup_epochs  # fftool's option: the posterior first, then the full loss
             parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
@@ -146,12 +140,12 @@ class _Trainer:
         )
         ade, fde = found.pop("min_ade"), found.pop("min_fde")
         fair = {}
-        if self.val_goals is not None:
+        if self.module is not None:
             # the force constants as the saved model keeps them (evaluate's view of it): the declared ones
             forces = None if self.forces_cfg is None else ForcesConfig.model_validate(self.forces_cfg.model_dump())
             trained = Trained(self.model, cfg, forces, self.dt_s)
             found_ade, found_fde = fair_min_ade_fde(
-                trained, self.val, self.val_subset, self.val_goals, self.obs_len, cfg.k, cfg.seed
+                trained, self.val, self.val_subset, self.module.val_goals, self.obs_len, cfg.k, cfg.seed
             )
             fair = {f"val_fair_min_ade@{cfg.k}_m": found_ade, f"val_fair_min_fde@{cfg.k}_m": found_fde}
         return {
@@ -179,11 +173,9 @@ def _trainer(
     val = load_scene_set(windows, forces, benchmark, "val", reads=reads)
     val_subset = val_windows(val, cfg)
     obs_len = int(windows.manifest.stats["obs_len"])
-    errors, val_goals = None, None
+    module = None
     if goals is not None and goal_training is not None:
-        val_goals = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
-        fitted = goal_errors.fit(val.data.xy, val_goals, obs_len, goal_training.speed_bins, goal_training.true_share)
-        errors = fitted.to(device)
+        module = goal_errors.module_goals(goals, val, benchmark, obs_len, goal_training, device)
     seed_all(cfg.seed)
     model = build_model(cfg).to(device)
     return _Trainer(
@@ -198,8 +190,7 @@ def _trainer(
         dt_s=float(forces.manifest.stats["dt_s"]) if forces is not None else None,  # the forces' time step
         per_epoch=min(train.windows, cfg.max_train_windows) if cfg.max_train_windows else train.windows,
         device=device,
-        errors=errors,
-        val_goals=val_goals,
+        module=module,
     )
 
 
@@ -221,7 +212,7 @@ def train(
     """
     benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.dir
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device, goal_training, goals)
-    fair = "_fair" if trainer.val_goals is not None else ""
+    fair = "_fair" if trainer.module is not None else ""
     started, best_by = time.perf_counter(), f"val{fair}_min_ade@{cfg.k}_m"
     progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=CVAE_LOG_FILE)
     save_checkpoint(

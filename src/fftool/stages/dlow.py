@@ -1,8 +1,10 @@
 """Train AgentFormer's DLow sampler (its second stage) over a trained CVAE of one benchmark and variant.
 
 Reads: the `cvae` artifact (frozen, in eval mode: no dropout, no scene rotation, no agent cap), windows and,
-for dr and re, the forces arrays the CVAE trained on (training goals are the ground truth, as in the CVAE's
-training). Writes: `dlow/<fp>/model.pt` (the Q-net's best weights by validation minADE of its K codes),
+for dr and re, the forces arrays the CVAE trained on. Training goals are those of the CVAE's training: the
+ground truth, or, over a CVAE trained for the goal module's goals (`goal_training.source = "module"`), goals
+moved by the module's errors, with the best epoch then chosen under the fair protocol. Writes:
+`dlow/<fp>/model.pt` (the Q-net's best weights by validation minADE of its K codes),
 `log.csv` and the same curves as TensorBoard events. Run: `fftool train-dlow --benchmarks zara1 --variant
 baseline`. `evaluate`, `predict` and the API then draw their K futures from its codes z = b instead of the
 prior (AgentFormer's test-time sampler; docs/cvae.md "DLow").
@@ -21,11 +23,13 @@ import torch
 
 from fftool.artifacts.schema import COMMANDS, DLOW_LOG_FILE, DLOW_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
-from fftool.config import DLowConfig, PipelineConfig, variant_section
+from fftool.config import DLowConfig, GoalTrainingConfig, PipelineConfig, variant_section
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, load_model, sample, val_metrics
 from fftool.learning.dlow_model import Preset, build_sampler, preset, training_loss
 from fftool.learning.features import TRAINING_READS, prepare, training_inputs
+from fftool.learning.goal_errors import ModuleGoals, module_goals
+from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
     epoch_batches,
     epoch_seed,
@@ -38,6 +42,7 @@ from fftool.learning.training import (
     validation_subset,
 )
 from fftool.models.dlow import QNet
+from fftool.paper import reads_goal
 from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "dlow"
@@ -62,6 +67,7 @@ class _Trainer:
     obs_len: int
     per_epoch: int
     device: torch.device
+    module: ModuleGoals | None = None  # over a CVAE trained for the goal module's goals: the same goals
     first_steps: list[int] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -78,8 +84,12 @@ class _Trainer:
         gen = generator(epoch_seed(cfg.seed, epoch), device)
         plan, _ = self._plan(epoch)
         sums = {"loss": 0.0, "recon": 0.0, "diverse": 0.0, "kl": 0.0, "kl_unclamped": 0.0}
+        trained = self.trained
         for step, members in enumerate(plan):
-            prepared = prepare(self.train.batch(members).to(device), variant, self.obs_len)
+            batch, goal = self.train.batch(members).to(device), None
+            if self.module is not None:
+                batch, goal = self.module.move(batch, self.obs_len, gen, trained.forces_config, trained.dt_s, variant)
+            prepared = prepare(batch, variant, self.obs_len, goal=goal)
             parts = training_loss(self.trained, self.model, prepared, cfg, self.chosen, gen)
             factor = lr_factor(
                 self.chosen.schedule,
@@ -105,7 +115,8 @@ class _Trainer:
         }
 
     def validate(self) -> dict[str, float]:
-        """minADE_K and minFDE_K of the K codes on the fixed validation subset (ground-truth goals)."""
+        """minADE_K and minFDE_K of the K codes on the fixed validation subset with ground-truth goals and,
+        over a CVAE trained for the goal module's goals, under the fair protocol."""
         self.model.eval()
         model, cvae_cfg = self.trained.model, self.trained.config
         forces_cfg, dt_s, k = self.trained.forces_config, self.trained.dt_s, self.cfg.k
@@ -117,12 +128,29 @@ class _Trainer:
             self.device,
             lambda prepared: sample(model, prepared, cvae_cfg, forces_cfg, dt_s, k, sampler=self.model),
         )
+        found = {f"val_min_ade@{k}_m": ade, f"val_min_fde@{k}_m": fde}
+        if self.module is not None:
+            fair_ade, fair_fde = fair_min_ade_fde(
+                self.trained, self.val, self.val_subset, self.module.val_goals, self.obs_len, k, self.cfg.seed,
+                sampler=self.model,
+            )  # fmt: skip
+            found |= {f"val_fair_min_ade@{k}_m": fair_ade, f"val_fair_min_fde@{k}_m": fair_fde}
         self.model.train()
-        return {f"val_min_ade@{k}_m": ade, f"val_min_fde@{k}_m": fde}
+        return found
 
 
-def train(cfg: DLowConfig, windows: Artifact, forces: Artifact | None, cvae: Artifact, ctx: StageContext) -> dict:
-    """Train the sampler with validation every epoch; write the best weights and the log; the manifest stats."""
+def train(
+    cfg: DLowConfig,
+    windows: Artifact,
+    forces: Artifact | None,
+    cvae: Artifact,
+    ctx: StageContext,
+    goal_training: GoalTrainingConfig | None = None,
+    goals: Artifact | None = None,
+) -> dict:
+    """Train the sampler with validation every epoch; write the best weights and the log; the manifest stats.
+    goal_training, goals: over a CVAE trained for the goal module's goals, its section and the goals artifact
+    (training goals drawn the same way; the best epoch is then the fair one)."""
     benchmark, device = ctx.need_benchmark(), ctx.device()
     trained = load_model(cvae, device)
     trained.model.requires_grad_(False)  # frozen, and in eval mode (load_model)
@@ -143,8 +171,12 @@ def train(cfg: DLowConfig, windows: Artifact, forces: Artifact | None, cvae: Art
         obs_len=int(windows.manifest.stats["obs_len"]),
         per_epoch=min(train_set.windows, cfg.max_train_windows) if cfg.max_train_windows else train_set.windows,
         device=device,
-    )
-    started, best_by = time.perf_counter(), f"val_min_ade@{cfg.k}_m"
+        module=None if goals is None or goal_training is None else module_goals(
+            goals, val, benchmark, int(windows.manifest.stats["obs_len"]), goal_training, device
+        ),
+    )  # fmt: skip
+    fair = "_fair" if trainer.module is not None else ""
+    started, best_by = time.perf_counter(), f"val{fair}_min_ade@{cfg.k}_m"
     progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=DLOW_LOG_FILE)
     save_checkpoint(
         ctx.dir / DLOW_MODEL_FILE,
@@ -171,7 +203,9 @@ def train(cfg: DLowConfig, windows: Artifact, forces: Artifact | None, cvae: Art
 
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: train one benchmark's DLow sampler over its CVAE of the configured variant."""
-    return train(cfg.dlow, inputs["windows"], inputs.get("forces"), inputs["cvae"], ctx)
+    goals = inputs.get("goals")
+    goal_training = cfg.goal_training if goals is not None else None
+    return train(cfg.dlow, inputs["windows"], inputs.get("forces"), inputs["cvae"], ctx, goal_training, goals)
 
 
 def declare(cfg: PipelineConfig) -> Reads:
@@ -179,11 +213,10 @@ def declare(cfg: PipelineConfig) -> Reads:
     variant = cfg.cvae.variant
     unread = {"variants"} | (_FIXED if variant_section(cfg, "dlow").per_benchmark == "agentformer" else set())
     params = tuple(f"dlow.{key}" for key in DLowConfig.model_fields if key not in unread)
-    return Reads(
-        params=params,
-        artifacts=training_inputs(variant) | {"cvae": None},
-        command=f" --variant {variant}",
-    )
+    artifacts = training_inputs(variant) | {"cvae": None}
+    if reads_goal(variant) and cfg.goal_training.source == "module":  # as its CVAE: the module's goals and errors
+        params, artifacts = (*params, "goal_training.*"), artifacts | {"goals": None}
+    return Reads(params=params, artifacts=artifacts, command=f" --variant {variant}")
 
 
 STAGE = Stage(
