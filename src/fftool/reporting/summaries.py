@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
+import pandas as pd
 from rich import box
 from rich.table import Table
 
@@ -226,26 +227,82 @@ def rescore_table(evaluation: Artifact, rescored: dict) -> Table:
     return table
 
 
+# Each report table for a terminal: file stem, title, and the metric of columns that name only a scene.
+_REPORT_TABLES: Final = (
+    ("table2_ade_fde", "Table II", ""),
+    ("table3_fde", "Table III, per variant", "minFDE"),
+    ("table4_collisions", "Table IV", "NC"),
+    ("table5_collision_metrics", "Table V", ""),
+    ("table6_paired", "Table VI, variant minus AgentFormer (paired)", ""),
+)
+_UNITS: Final = {"minADE": "m", "minFDE": "m", "COL": "%", "JADE": "m", "JFDE": "m"}
+_DERIVED: Final = (" sd", " low", " high", " per seed", " (paper)")
+_TOTALS: Final = ("average", "sum", "all scenes")
+_PUBLISHED: Final = ", published, not re-run"
+
+
 def report_tables(report_dir: Path) -> list[Table]:
-    """The report's Tables II-VI (read back from their Markdown files, intervals included) as rich tables."""
+    """The report's Tables II-VI for a terminal, from their CSV files: one table per metric, the estimates
+    only (the intervals are in the Markdown files), the paper's numbers in a dim row under each method that
+    has them, and no column without a number, so a row fits one line of 100 columns."""
     tables = []
-    for stem, title in (
-        ("table2_ade_fde", "Table II: minADE/minFDE (m), ours and (paper)"),
-        ("table3_fde", "Table III: minFDE (m) per variant"),
-        ("table4_collisions", "Table IV: number of collisions NC"),
-        ("table5_collision_metrics", "Table V: COL (%) and Col-II"),
-        ("table6_paired", "Table VI: variant minus AgentFormer, paired"),
-    ):
-        lines = [line for line in (report_dir / f"{stem}.md").read_text().splitlines() if line.startswith("|")]
-        header, *rows = ([cell.strip() for cell in line.strip("|").split("|")] for line in lines)
-        table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
-        for i, column in enumerate(header):
-            table.add_column(column.replace(" (paper)", "\n(paper)"), justify="left" if i == 0 else "right",
-                             style="dim" if "(paper)" in column else None)  # fmt: skip
-        for row in rows[1:]:  # rows[0] is the alignment rule
-            table.add_row(*row)
-        tables.append(table)
+    for stem, title, bare in _REPORT_TABLES:
+        frame = pd.read_csv(report_dir / f"{stem}.csv", keep_default_na=False)
+        for metric, columns in _metric_columns(frame, bare).items():
+            rows = frame if "metric" not in frame.columns else frame[frame["metric"] == metric]
+            tables.append(_metric_table(f"{title}: {metric}", rows, columns, metric, f"{stem}.md"))
     return tables
+
+
+def _metric_columns(frame: pd.DataFrame, bare: str) -> dict[str, list[str]]:
+    """metric -> its estimate columns: "<scene> <metric>" columns grouped by metric, columns that name only a
+    scene under `bare`, or under each of the rows' own metrics (Table VI)."""
+    found: dict[str, list[str]] = {}
+    scenes = [c for c in frame.columns[1:] if c != "metric" and not c.endswith(_DERIVED)]
+    for column in scenes:
+        scene, _, metric = column.partition(" ")
+        own = column in _TOTALS or (scene in BENCHMARKS and not metric)
+        for name in (frame["metric"].unique() if "metric" in frame.columns else [bare]) if own else [metric]:
+            found.setdefault(str(name), []).append(column)
+    return found
+
+
+def _metric_table(title: str, rows: pd.DataFrame, columns: list[str], metric: str, intervals: str) -> Table:
+    unit = _UNITS.get(metric.lstrip("Δ"))
+    table = Table(title=f"{title} ({unit})" if unit else title, title_justify="left", box=box.SIMPLE_HEAD,
+                  caption_justify="left")  # fmt: skip
+    shown = [c for c in columns if pd.to_numeric(rows[c], errors="coerce").notna().any()]
+    table.add_column("method", no_wrap=True)
+    for column in shown:
+        table.add_column(column.removesuffix(f" {metric}"), justify="right", no_wrap=True)
+    position = ("minADE", "minFDE").index(metric) if metric in ("minADE", "minFDE") else 0
+    dim = False
+    for row in rows.to_dict("records"):
+        name = str(row[rows.columns[0]])
+        ours = [_number(row[c], metric) for c in shown]
+        published = [_paper(row.get(f"{c.removesuffix(f' {metric}')} (paper)", ""), position) for c in shown]
+        if any(ours):
+            table.add_row(name, *ours)
+        if any(published):
+            table.add_row(name.removesuffix(_PUBLISHED) if not any(ours) else "  (paper)", *published, style="dim")
+            dim = True
+    table.caption = f"estimates{'; dim: published' if dim else ''}; intervals in {intervals}"
+    return table
+
+
+def _number(value: object, metric: str) -> str:
+    number = pd.to_numeric(value, errors="coerce")
+    if pd.isna(number):
+        return ""
+    sign = "+" if metric.startswith("Δ") else ""
+    digits = 0 if metric.lstrip("Δ") in ("NC", "Col-II") else 2 if metric.lstrip("Δ") == "COL" else 3
+    return f"{number:{sign}.{digits}f}"
+
+
+def _paper(text: object, position: int) -> str:
+    """One number of a published cell ("0.45/0.75": minADE/minFDE; "655": NC)."""
+    parts = [part.strip() for part in str(text).split("/")] if text else []
+    return parts[0] if len(parts) == 1 else parts[position] if position < len(parts) else ""
 
 
 def run_summary(results: list[dict]) -> Table:
