@@ -107,6 +107,7 @@ class Model:
                 f"expected past (B, A, {self.obs_len}, 2) and agent_mask (B, A), got {past.shape} and {mask.shape}"
             )
         check_request(past, mask, k, self.pred_len)
+        check_seed(seed)
         past = np.where(mask[:, :, None, None], past, 0.0)  # padding never reaches the model, NaN or not
         if goals is not None:
             check_goals(np.asarray(goals, dtype=np.float64), mask)
@@ -141,6 +142,12 @@ def check_k(k: object, agent_slots: int, pred_len: int) -> None:
             f"k = {k} for {agent_slots} agent(s) asks for {values:,} future coordinates (at most "
             f"{MAX_OUTPUT_VALUES:,} per call): lower k, or predict fewer agents or times per call"
         )
+
+
+def check_seed(seed: object) -> None:
+    """A seed is a whole number in [0, 2**63): what torch's and numpy's generators take."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
+        raise InputError(f"seed = {seed!r}: expected a whole number from 0 to 2**63 - 1")
 
 
 def check_request(past: np.ndarray, mask: np.ndarray, k: object, pred_len: int) -> None:
@@ -273,6 +280,21 @@ def draw_futures(
     """The goals (M, K, 2) and futures (M, K, pred_len, 2) of the observed agent-windows `found`, whose agent
     ids are `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`."""
     check_k(k, len(found.xy), model.pred_len)
+    check_seed(seed)
+    far = _off_limits(found.xy).any(1)
+    if far.any():
+        m = int(np.argmax(far))
+        raise InputError(
+            f"agent {labels[m]}: observed positions {found.xy[m][_off_limits(found.xy[m])][0].tolist()} are not "
+            f"finite coordinates within ±{MAX_ABS_COORDINATE_M:g} m (positions in metres?)"
+        )
+    for label, goal in (goals or {}).items():
+        try:
+            point = np.asarray(goal, dtype=np.float64).reshape(2)
+        except (TypeError, ValueError):
+            point = np.full(2, np.nan)
+        if _off_limits(point[None]).any():
+            raise InputError(f"agent {label}: goal {goal!r} is not an (x, y) within ±{MAX_ABS_COORDINATE_M:g} m")
     scenes = scene_set(
         found.xy, found.window, found.agent, model.pred_len, model.trained.forces_config, model.trained.dt_s
     )
@@ -371,6 +393,7 @@ class OnlinePredictor:
         if isinstance(goal_sampler, (str, Path)):
             goal_sampler = load_goal_sampler(goal_sampler, root=root, device=model.device)
         check_k(k, 1, model.pred_len)
+        check_seed(seed)
         if not max_gap_s >= 0:
             raise UsageError(f"max_gap_s = {max_gap_s}: expected seconds, at least 0")
         self.model, self.k, self.seed, self.goal_sampler = model, k, seed, goal_sampler

@@ -56,7 +56,9 @@ def predict(
         typer.Option("--at", help="Prediction time(s): last (the file's last time), all, or comma-separated seconds."),
     ] = "last",
     k: Annotated[int, typer.Option("--k", min=1, help="Samples per agent.")] = 20,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the draws (evaluate's default is 0).")] = 0,
+    seed: Annotated[
+        int, typer.Option("--seed", min=0, max=2**63 - 1, help="Seed of the draws (evaluate's default is 0).")
+    ] = 0,
     goal_model: Annotated[
         str | None, typer.Option("--goal-model", help="Goal variants: a goal U-Net artifact (K goals, no map).")
     ] = None,

@@ -113,6 +113,12 @@ def prediction_steps(tracks: StepTracks, at: str | list[float]) -> np.ndarray | 
     if at == "all":
         return None
     rel = (np.asarray(at, dtype=np.float64) - tracks.last_time_s) / tracks.step_s
+    outside = np.flatnonzero((rel > _ON_GRID) | (rel < tracks.step.min() - _ON_GRID))
+    if outside.size:
+        raise UsageError(
+            f"--at {at[outside[0]]:g}: outside the file's times ({tracks.time_of(tracks.step.min()):.6g} to "
+            f"{tracks.last_time_s:.6g} s)"
+        )
     off = np.flatnonzero(np.abs(rel - np.round(rel)) > _ON_GRID)
     if off.size:
         raise UsageError(
@@ -137,6 +143,15 @@ def observed_windows(
             f"no agent has {obs_len} observed steps of {tracks.step_s:g} s up to {times}: expected at least one "
             f"agent present at every one of the {obs_len} steps before a prediction time",
         )
+    if require and steps is not None:  # every time asked for, not just one of them
+        missing = np.setdiff1d(steps, found.t0_step)
+        if missing.size:
+            when = tracks.time_of(missing[:1])[0]
+            raise RawDataError(
+                path,
+                f"no agent has {obs_len} observed steps of {tracks.step_s:g} s up to {when:.6g} s (asked for): "
+                f"expected at least one agent present at every one of the {obs_len} steps before it",
+            )
     keep = keep_window[found.agent_window]
     renumber = np.cumsum(keep_window) - 1
     return ObservedWindows(

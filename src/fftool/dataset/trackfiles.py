@@ -48,7 +48,8 @@ def read_table(path: Path) -> pd.DataFrame:
         if suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         if suffix in (".csv", ".txt", ".tsv"):
-            return pd.read_csv(path, sep=None, engine="python", dtype=str, skipinitialspace=True)
+            # utf-8-sig: a byte-order mark (Excel's "CSV UTF-8") is not part of the first column's name
+            return pd.read_csv(path, sep=None, engine="python", dtype=str, skipinitialspace=True, encoding="utf-8-sig")
     except (ValueError, OSError, UnicodeDecodeError, pd.errors.ParserError, csv.Error) as exc:
         raise RawDataError(path, f"not a readable {suffix.lstrip('.')} table ({' '.join(str(exc).split())})") from exc
     raise RawDataError(path, f"unknown file type {suffix!r}: expected .csv or .parquet")
@@ -82,19 +83,38 @@ def _numbers(path: Path, frame: pd.DataFrame, column: str, csv: bool) -> np.ndar
     return values
 
 
+def _agent_ids(path: Path, frame: pd.DataFrame, column: str, csv: bool) -> np.ndarray:
+    """The agent column: whole numbers as int64 (so they sort as numbers), any other ids as text; an empty
+    id is an error naming its line. Integer ids beyond int64 stay text, never wrapped or merged."""
+    text = frame[column].astype("string").str.strip()
+    if text.isna().any() or (text == "").any():
+        row = int(np.flatnonzero((text.isna() | (text == "")).to_numpy())[0])
+        raise RawDataError(path, f"{'line' if csv else 'row'} {row + 2 if csv else row}: empty agent id")
+    whole = text.str.fullmatch(r"[+-]?\d+(\.0*)?").all()
+    if whole:
+        values = [int(t.split(".")[0]) for t in text]
+        if all(-(2**63) <= v < 2**63 for v in values):
+            return np.asarray(values, dtype=np.int64)
+    return text.to_numpy(dtype=object).astype(str)
+
+
 def read_goals(path: Path, columns: Columns = Columns(), units: str = "m") -> pd.DataFrame:
     """One goal per agent (agent, x, y in metres), from columns named as the tracks' are."""
     if units not in UNITS:
         raise RawDataError(path, f"unknown unit {units!r}: expected one of {', '.join(UNITS)}")
     frame = read_table(path)
     csv = path.suffix.lower() not in (".parquet", ".pq")
-    agent = frame[_pick(path, frame, columns.agent, AGENT_COLUMNS, "agent id")]
-    numeric = pd.to_numeric(agent, errors="coerce")
-    if numeric.notna().all() and (numeric == numeric.round()).all():
-        agent = numeric.astype(np.int64)
+    agent = _agent_ids(path, frame, _pick(path, frame, columns.agent, AGENT_COLUMNS, "agent id"), csv)
+    twice = np.flatnonzero(pd.Series(agent).duplicated().to_numpy())
+    if twice.size:
+        row = int(twice[0])
+        raise RawDataError(
+            path, f"{'line' if csv else 'row'} {row + 2 if csv else row}: agent {agent[row]} has a goal already; "
+            "expected one goal per agent",
+        )  # fmt: skip
     x = _numbers(path, frame, _pick(path, frame, columns.x, (), "x"), csv) * UNITS[units]
     y = _numbers(path, frame, _pick(path, frame, columns.y, (), "y"), csv) * UNITS[units]
-    return pd.DataFrame({"agent": agent.to_numpy(), "x": x, "y": y})
+    return pd.DataFrame({"agent": agent, "x": x, "y": y})
 
 
 def read_tracks(
@@ -133,18 +153,12 @@ def read_tracks(
             seconds_per_unit = frame_step_s / float(gaps.min())
         else:
             seconds_per_unit = 1.0
-    agent = frame[agent_col]
-    numeric = pd.to_numeric(agent, errors="coerce")
-    if numeric.notna().all() and (numeric == numeric.round()).all():  # numeric ids sort as numbers
-        agent = numeric.astype(np.int64)
-    if agent.isna().any():
-        row = int(np.flatnonzero(agent.isna().to_numpy())[0])
-        raise RawDataError(path, f"{'line' if csv else 'row'} {row + 2 if csv else row}: empty agent id")
+    agent = _agent_ids(path, frame, agent_col, csv)
     scale = UNITS[units]
     tracks = pd.DataFrame(
         {
             "time_s": time * seconds_per_unit,
-            "agent": agent.to_numpy(),
+            "agent": agent,
             "x": _numbers(path, frame, x_col, csv) * scale,
             "y": _numbers(path, frame, y_col, csv) * scale,
             "line": np.arange(len(frame)) + (2 if csv else 0),
@@ -161,18 +175,21 @@ def _check_rows(path: Path, tracks: pd.DataFrame, max_speed_mps: float, where: s
     dt = np.diff(tracks["time_s"].to_numpy())
     twice = np.flatnonzero(same_agent & (dt <= 0))
     if twice.size:
-        row = tracks.iloc[twice[0] + 1]
-        raise RawDataError(
-            path, f"{where} {row['line']}: agent {row['agent']} appears twice at time {row['time_s']:.6g} s"
-        )
+        line, agent, time_s = _row(tracks, twice[0] + 1)
+        raise RawDataError(path, f"{where} {line}: agent {agent} appears twice at time {time_s:.6g} s")
     step = np.hypot(np.diff(tracks["x"].to_numpy()), np.diff(tracks["y"].to_numpy()))
     speed = np.where(same_agent, step / np.where(dt > 0, dt, 1.0), 0.0)
     fast = np.flatnonzero(speed > max_speed_mps)
     if fast.size:
-        row = tracks.iloc[fast[0] + 1]
+        line, agent, time_s = _row(tracks, fast[0] + 1)
         raise RawDataError(
             path,
-            f"{where} {row['line']}: agent {row['agent']} moves {step[fast[0]]:.3g} m in {dt[fast[0]]:.3g} s "
-            f"({speed[fast[0]]:.3g} m/s, above {max_speed_mps:g} m/s) at time {row['time_s']:.6g} s: positions "
+            f"{where} {line}: agent {agent} moves {step[fast[0]]:.3g} m in {dt[fast[0]]:.3g} s "
+            f"({speed[fast[0]]:.3g} m/s, above {max_speed_mps:g} m/s) at time {time_s:.6g} s: positions "
             "must all be in one unit (mixed units? set the unit of the file)",
         )
+
+
+def _row(tracks: pd.DataFrame, i: int) -> tuple[int, object, float]:
+    """(line, agent, time) of row i, each with its own type (a mixed row read whole turns ids into floats)."""
+    return int(tracks["line"].iat[i]), tracks["agent"].iat[i], float(tracks["time_s"].iat[i])
