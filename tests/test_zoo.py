@@ -159,6 +159,30 @@ def test_a_failed_pack_leaves_no_models_folder(tiny: dict[str, Path]) -> None:
     assert not tiny["models"].exists()
 
 
+def test_rekey_refuses_models_whose_training_inputs_changed_upstream(
+    tiny: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Windows of 10 observed steps instead of 8 change no model's own parameters, only its upstream
+    fingerprints, as a code change would: the lineage packed with each model tells the two apart."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    assert all("lineage" in m.artifact.manifest.stats for m in zoo.shipped("tiny"))
+    profile = tiny["pipelines"] / "tiny.toml"
+    profile.write_text(profile.read_text() + "\n[windows]\nobs_len = 10\n")
+    assert len(zoo.orphans(zoo.shipped("tiny"))) == 4
+    with pytest.raises(FftoolError, match="trained with other parameters \\(windows.obs_len\\); retrain it"):
+        zoo.rekey("tiny")
+
+
+def test_rekey_gives_a_current_model_without_a_lineage_its_own(tiny: dict[str, Path]) -> None:
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    model = zoo.shipped("tiny")[0].artifact
+    manifest = json.loads((model.path / "manifest.json").read_text())
+    recorded = manifest["stats"].pop("lineage")
+    (model.path / "manifest.json").write_text(json.dumps(manifest))
+    assert zoo.rekey("tiny") == []  # nothing moved
+    assert zoo.shipped("tiny")[0].artifact.manifest.stats["lineage"] == recorded
+
+
 def test_rekey_moves_models_whose_code_version_alone_changed(
     tiny: dict[str, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:

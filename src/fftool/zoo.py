@@ -10,12 +10,13 @@ them built and trains nothing. Names read `<profile>/<benchmark>/<variant>` (e.g
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
 from fftool.config import PipelineConfig, load_config, predictor_config
@@ -216,9 +217,30 @@ def trained_by(cfg: PipelineConfig, benchmark: str) -> list[tuple[str, str | Non
     return [(kind, variant, planned(cfg, kind, variant, benchmark).fingerprint) for kind, variant in wanted]
 
 
+def lineage(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> dict[str, Any]:
+    """What a trained model was built from, stage by stage upstream of it: each stage's parameters and the raw
+    files it hashed (not the code versions, which a re-key may change). Kept in the shipped manifest's stats,
+    so a re-key can tell a code change from a change of the model's training inputs."""
+    chosen = cfg if variant is None else predictor_config(cfg, variant)
+    chain = {item.stage.name: item for item in _resolve(chosen, kind, benchmark)}
+    found = {
+        name: {"params": item.params, "raw": {k: v for k, v in item.inputs.items() if k.split("[")[0] not in chain}}
+        for name, item in chain.items()
+        if name != kind
+    }
+    return json.loads(json.dumps(found))  # as the manifest will hold it
+
+
+def _resolve(cfg: PipelineConfig, kind: str, benchmark: str) -> list[Resolved]:
+    from fftool import pipeline
+
+    return pipeline.resolve(cfg, [kind], benchmark)
+
+
 def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
-    """Copy a benchmark's trained models from `source` into `models/<profile>/` (all of them or nothing), and
-    remove the shipped models they replace (the same name, another fingerprint); the names packed."""
+    """Copy a benchmark's trained models from `source` into `models/<profile>/` (all of them or nothing), each
+    with its lineage, and remove the shipped models they replace (the same name, another fingerprint); the
+    names packed."""
     cfg = profile_config(profile)
     chosen = list(benchmarks)
     plan = []
@@ -232,14 +254,15 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
                     f"(`fftool reproduce pipelines/{profile}.toml --benchmarks {benchmark}`)"
                 )
             source.check_inputs({kind: artifact})
-            plan.append(artifact)
+            stats = artifact.manifest.stats | {"lineage": lineage(cfg, kind, variant, benchmark)}
+            plan.append((artifact, replace(artifact.manifest, stats=stats)))
     folder = (root or models_root()) / profile  # made only once every model is found: a failed pack leaves nothing
     folder.mkdir(parents=True, exist_ok=True)
     zoo = ArtifactStore(folder)
     old = {m.name: m for m in shipped(profile, chosen, root)}
     packed = []
-    for artifact in plan:
-        model = Shipped(profile, zoo.adopt(artifact))
+    for artifact, manifest in plan:
+        model = Shipped(profile, zoo.adopt(artifact, manifest))
         replaced = old.get(model.name)
         if replaced is not None and replaced.artifact.fingerprint != model.artifact.fingerprint:
             zoo.remove(replaced.artifact)
@@ -248,8 +271,7 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
 
 
 def _default(section: str | None, key: str) -> object:
-    """The default of a fingerprint record's key: a bare key is the stage's own section's, a dotted one names
-    its section."""
+    """The default of a record's key: a bare key is `section`'s, a dotted one names its section."""
     name, _, bare = key.rpartition(".")
     owner = name or section
     if owner is None:
@@ -257,34 +279,63 @@ def _default(section: str | None, key: str) -> object:
     return type(getattr(PipelineConfig(), owner))().model_dump(mode="json").get(bare)
 
 
-def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | None = None) -> list[str]:
-    """Move orphaned shipped models to the fingerprints the code computes now, when only code versions or
-    upstream fingerprints changed, or parameters were added that the profile leaves at their defaults (a new
-    option's default is the behaviour the model was trained with): a model whose recorded parameters differ
-    from today's otherwise is refused (it was trained on something else: retrain it). The manifest's
-    fingerprint, params, inputs and sources are rewritten and `rekeyed_from` is added to its stats; the names
-    re-keyed."""
-    from dataclasses import replace
+def _changed(today: dict[str, Any], recorded: dict[str, Any], section: str | None) -> list[str]:
+    """The keys whose values differ, but for keys the record lacks that today holds at their default (an
+    option added since, whose default is the behaviour the model was trained with)."""
+    keys = {*today, *recorded}
+    return sorted(
+        k
+        for k in keys
+        if today.get(k) != recorded.get(k) and not (k not in recorded and today[k] == _default(section, k))
+    )
 
+
+def _lineage_changes(today: dict[str, Any], recorded: dict[str, Any]) -> list[str]:
+    """`stage.key` of every parameter or raw file upstream of a model that is not what it was trained on."""
+    from fftool import pipeline
+
+    changes = []
+    for name in sorted({*today, *recorded}):
+        now, then = today.get(name, {"params": {}, "raw": {}}), recorded.get(name, {"params": {}, "raw": {}})
+        section = pipeline.STAGES[name].section if name in pipeline.STAGES else None
+        changes += [f"{name}.{k}" for k in _changed(now["params"], then["params"], section)]
+        changes += [
+            f"{name} file {k}" for k in sorted({*now["raw"], *then["raw"]}) if now["raw"].get(k) != then["raw"].get(k)
+        ]
+    return changes
+
+
+def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | None = None) -> list[str]:
+    """Move orphaned shipped models to the fingerprints the code computes now, when only code versions
+    changed, or options were added that the profile leaves at their defaults (a new option's default is the
+    behaviour the model was trained with). A model whose own parameters, or whose lineage (every upstream
+    stage's parameters and raw files, recorded when it was packed), differ from today's otherwise is refused:
+    it was trained on something else, retrain it. A current model packed without a lineage gets today's, which
+    its fingerprint proves is its own. The manifest's fingerprint, params, inputs and sources are rewritten and
+    `rekeyed_from` is added to its stats; the names re-keyed."""
     cfg = profile_config(profile)
     zoo = store(profile, root)
     moved = []
     for model in shipped(profile, benchmarks, root):
         item = planned(cfg, model.kind, model.variant, model.benchmark)
         manifest = model.artifact.manifest
+        today = lineage(cfg, model.kind, model.variant, model.benchmark)
         if item.fingerprint == manifest.fingerprint:
+            if "lineage" not in manifest.stats:
+                check(model, zoo)
+                zoo.replace_manifest(model.artifact, replace(manifest, stats=manifest.stats | {"lineage": today}))
             continue
-        keys = {*item.params, *manifest.params}
-        changed = sorted(
-            k
-            for k in keys
-            if item.params.get(k) != manifest.params.get(k)
-            and not (k not in manifest.params and item.params[k] == _default(item.stage.section, k))
-        )
+        if "lineage" not in manifest.stats:
+            raise FftoolError(
+                f"{model.name}: packed without a lineage, so a re-key cannot tell a code change from other training "
+                "inputs; retrain it"
+            )
+        changed = _changed(item.params, manifest.params, item.stage.section)
+        changed += _lineage_changes(today, manifest.stats["lineage"])
         if changed:
             raise FftoolError(f"{model.name}: trained with other parameters ({', '.join(changed)}); retrain it")
         check(model, zoo)
-        stats = manifest.stats | {"rekeyed_from": manifest.fingerprint}
+        stats = manifest.stats | {"rekeyed_from": manifest.fingerprint, "lineage": today}
         new = replace(
             manifest,
             fingerprint=item.fingerprint,

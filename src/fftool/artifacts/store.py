@@ -19,7 +19,7 @@ import shutil
 import subprocess
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, TypeVar
@@ -30,6 +30,7 @@ from fftool import __version__
 from fftool.artifacts.hashing import canonical_json, fingerprint, sha256_file
 from fftool.artifacts.schema import COMMANDS, VERSIONS
 from fftool.errors import ArtifactMissing, FftoolError, IntegrityError, SchemaError
+from fftool.outputs import replacing_file
 from fftool.ui import log, warn
 
 MANIFEST = "manifest.json"
@@ -534,6 +535,16 @@ class ArtifactStore:
                 shutil.rmtree(tmp, ignore_errors=True)
                 _remove_empty(tmp.parent)
         return Artifact(final, manifest)
+
+    def replace_manifest(self, artifact: Artifact, manifest: Manifest) -> Artifact:
+        """Rewrite one of this store's artifacts' manifest where only its stats change (what it records about
+        the build, never what its fingerprint or files are), atomically under its lock."""
+        old = self._read(artifact.path).manifest
+        if replace(manifest, stats=old.stats) != old:
+            raise IntegrityError(f"{artifact.path}: a new manifest may change only the stats")
+        with self.lock(old.kind, old.fingerprint), replacing_file(artifact.path / MANIFEST) as partial:
+            partial.write_text(manifest.to_json())
+        return Artifact(artifact.path, manifest)
 
     def remove(self, artifact: Artifact) -> None:
         """Delete one of this store's own artifacts (a readable one: anything else is left where it is)."""
