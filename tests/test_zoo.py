@@ -179,6 +179,7 @@ def test_rekey_gives_a_current_model_without_a_lineage_its_own(tiny: dict[str, P
     manifest = json.loads((model.path / "manifest.json").read_text())
     recorded = manifest["stats"].pop("lineage")
     (model.path / "manifest.json").write_text(json.dumps(manifest))
+    zoo.write_index(ArtifactStore(tiny["models"] / "tiny"))  # as an fftool without lineages packed it
     assert zoo.rekey("tiny") == []  # nothing moved
     assert zoo.shipped("tiny")[0].artifact.manifest.stats["lineage"] == recorded
 
@@ -213,6 +214,7 @@ def test_rekey_moves_a_model_trained_before_an_option_existed_when_the_profile_l
     older = unet.path.with_name(manifest["fingerprint"][:16])
     unet.path.rename(older)
     (older / "manifest.json").write_text(json.dumps(manifest))
+    zoo.write_index(ArtifactStore(tiny["models"] / "tiny"))  # as the older fftool packed it
     assert list(zoo.orphans(zoo.shipped("tiny"))) == ["tiny/zara1/goal-unet"]
     profile = tiny["pipelines"] / "tiny.toml"
     text = profile.read_text()
@@ -264,3 +266,52 @@ def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: 
     for t, rows in tracks[~future].groupby("time_s"):
         result = online.update(float(t), dict(zip(rows["agent"], zip(rows["x"], rows["y"]))))
     assert np.array_equal(result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy())
+
+
+def _dlow_folder(tiny: dict[str, Path]) -> Path:
+    return next(m for m in zoo.shipped("tiny") if m.kind == "dlow").artifact.path
+
+
+@pytest.mark.parametrize(
+    "spoil",
+    ["truncate the sampler's manifest", "edit stats.variant", "plant a second baseline", "remove the sampler",
+     "link loop inside"],
+)  # fmt: skip
+def test_a_damaged_edited_planted_or_missing_model_is_an_error_wherever_the_zoo_is_read(
+    tiny: dict[str, Path], spoil: str
+) -> None:
+    """Each of these once let `predict` draw from another model (the prior instead of the sampler), or let
+    `models list` show one model fewer and `install` report success."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    folder = _dlow_folder(tiny)
+    manifest = folder / "manifest.json"
+    if spoil == "truncate the sampler's manifest":
+        manifest.write_text(manifest.read_text()[:100])
+    elif spoil == "edit stats.variant":
+        data = json.loads(manifest.read_text())
+        data["stats"]["variant"] = "dr"
+        manifest.write_text(json.dumps(data))
+    elif spoil == "plant a second baseline":
+        cvae = next(m for m in zoo.shipped("tiny") if m.name == "tiny/zara1/baseline").artifact.path
+        shutil.copytree(cvae, cvae.with_name("0" * 16))
+    elif spoil == "remove the sampler":
+        shutil.rmtree(folder)
+    else:
+        (folder / "loop").symlink_to(folder, target_is_directory=True)
+    for read in (
+        lambda: _cli("models", "list", "--profile", "tiny"),
+        lambda: zoo.install(ArtifactStore(tiny["tmp"] / "fresh"), zoo.shipped("tiny")),
+        lambda: api.load("tiny/zara1/baseline"),
+    ):
+        with pytest.raises((IntegrityError, AssertionError)) as caught:
+            read()
+        assert "Traceback" not in str(caught.value) and "[" not in str(caught.value).split(":")[0]
+    assert not (tiny["tmp"] / "fresh" / "dlow").exists()
+
+
+def test_an_empty_or_missing_models_folder_is_named(tiny: dict[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    for folder in (tiny["tmp"] / "nowhere", tiny["tmp"] / "empty"):
+        folder.mkdir(exist_ok=True) if folder.name == "empty" else None
+        monkeypatch.setenv(zoo.ENV_MODELS, str(folder))
+        result = CliRunner().invoke(app, ["models", "list"])
+        assert result.exit_code == 2 and f"no shipped models in {folder}" in " ".join(result.output.split())

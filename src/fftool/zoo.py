@@ -18,9 +18,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
+from fftool.artifacts.hashing import sha256_file
+from fftool.artifacts.store import MANIFEST, Artifact, ArtifactStore, check_schema
 from fftool.config import PipelineConfig, load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError, UsageError
+from fftool.outputs import replacing_file
 from fftool.paper import VARIANTS, reads_goal
 
 if TYPE_CHECKING:
@@ -28,6 +30,7 @@ if TYPE_CHECKING:
 
 ENV_MODELS = "FFTOOL_MODELS"
 KINDS = ("goal", "cvae", "dlow")  # what a profile's run trains, upstream first
+INDEX = "index.json"  # models/<profile>/index.json: every shipped model's manifest sha256, written by pack and rekey
 NAME = re.compile(r"(?P<profile>[a-z0-9_]+)/(?P<benchmark>[A-Za-z0-9_.-]+)/(?P<variant>[a-z]+)")
 
 
@@ -108,16 +111,68 @@ def store(profile: str, root: Path | None = None) -> ArtifactStore:
 
 
 def profiles(root: Path | None = None) -> list[str]:
+    """The profiles with shipped models; none is a UsageError naming where fftool looked."""
     folder = root or models_root()
-    return sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+    found = sorted(p.name for p in folder.iterdir() if (p / INDEX).is_file()) if folder.is_dir() else []
+    if not found:
+        raise UsageError(
+            f"no shipped models in {folder} (no models/<profile>/{INDEX}; ${ENV_MODELS} names the models/ folder "
+            "of an fftool checkout when fftool is installed from elsewhere)"
+        )
+    return found
 
 
 def shipped(profile: str, benchmarks: Iterable[str] | None = None, root: Path | None = None) -> list[Shipped]:
-    """The profile's shipped artifacts (of the benchmarks given), in KINDS order, then by benchmark and variant."""
+    """The profile's shipped artifacts (of the benchmarks given), in KINDS order, then by benchmark and variant.
+
+    Every model folder must be the one the zoo's index names, its manifest byte for byte as packed: a folder
+    the index does not know, a manifest edited or damaged, a model the index names but the folder lacks, and
+    two models under one name are each an IntegrityError, wherever the zoo is read (list, install, load)."""
+    zoo = store(profile, root)
+    index = read_index(zoo.root)
+    found, seen = [], set()
+    for folder in sorted(f for kind in KINDS if (zoo.root / kind).is_dir() for f in (zoo.root / kind).iterdir()):
+        ref = f"{folder.parent.name}/{folder.name}"
+        seen.add(ref)
+        if ref not in index:
+            raise IntegrityError(f"{folder}: not in the zoo's index {zoo.root / INDEX}, so not a model fftool packed")
+        manifest = folder / MANIFEST
+        if folder.is_symlink() or not manifest.is_file() or sha256_file(manifest) != index[ref]:
+            raise IntegrityError(f"{folder}: its manifest is not the one packed (git checkout it, or pack it again)")
+        found.append(Shipped(profile, zoo.read(folder)))
+    missing = sorted(set(index) - seen)
+    if missing:
+        raise IntegrityError(f"{zoo.root}: the index names {missing[0]}, which is not there (git checkout it)")
+    names = [m.name for m in found]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise IntegrityError(f"{zoo.root}: two shipped models named {twice[0]}; the zoo holds one model per name")
     chosen = None if benchmarks is None else set(benchmarks)
-    found = [Shipped(profile, a) for kind in KINDS for a in store(profile, root).list(kind)]
     found = [m for m in found if chosen is None or m.benchmark in chosen]
     return sorted(found, key=lambda m: (KINDS.index(m.kind), m.benchmark, m.variant or ""))
+
+
+def read_index(folder: Path) -> dict[str, str]:
+    """artifact id -> sha256 of its manifest.json, as `pack` and `rekey` left them."""
+    try:
+        index = json.loads((folder / INDEX).read_text())["models"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise IntegrityError(f"{folder / INDEX}: not a readable zoo index ({exc}); git checkout it") from None
+    if not isinstance(index, dict):
+        raise IntegrityError(f"{folder / INDEX}: not a readable zoo index; git checkout it")
+    return index
+
+
+def write_index(zoo: ArtifactStore) -> None:
+    """The index of every model folder the zoo holds now (called by the commands that change it)."""
+    models = {
+        f"{folder.parent.name}/{folder.name}": sha256_file(folder / MANIFEST)
+        for kind in KINDS
+        if (zoo.root / kind).is_dir()
+        for folder in sorted((zoo.root / kind).iterdir())
+    }
+    with replacing_file(zoo.root / INDEX) as partial:
+        partial.write_text(json.dumps({"models": models}, indent=1, sort_keys=True) + "\n")
 
 
 def orphans(models: Iterable[Shipped]) -> dict[str, str]:
@@ -175,13 +230,14 @@ def find(name: str, root: Path | None = None) -> Bundle:
         check(model, zoo)
     cvae = by_kind["cvae"].artifact
     dlow = by_kind.get("dlow")
+    if variant in profile_config(profile).dlow.variants and (
+        dlow is None or dlow.artifact.manifest.sources.get("cvae") != cvae.fingerprint
+    ):  # the profile draws this variant through a sampler: never fall back to the prior's draws
+        raise IntegrityError(f"{name}: its profile draws it through a DLow sampler, and no shipped sampler is its own")
     goal = by_kind.get("goal") if reads_goal(variant) else None
-    return Bundle(
-        cvae,
-        dlow.artifact if dlow and dlow.artifact.manifest.sources.get("cvae") == cvae.fingerprint else None,
-        goal.artifact if goal else None,
-        zoo,
-    )
+    if reads_goal(variant) and goal is None:
+        raise IntegrityError(f"{name}: a goal variant, and its benchmark's goal U-Net is not shipped")
+    return Bundle(cvae, dlow.artifact if dlow else None, goal.artifact if goal else None, zoo)
 
 
 def install(target: ArtifactStore, models: Iterable[Shipped], root: Path | None = None) -> list[tuple[Shipped, str]]:
@@ -259,6 +315,8 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     folder = (root or models_root()) / profile  # made only once every model is found: a failed pack leaves nothing
     folder.mkdir(parents=True, exist_ok=True)
     zoo = ArtifactStore(folder)
+    if not (folder / INDEX).exists():
+        write_index(zoo)  # a new zoo
     old = {m.name: m for m in shipped(profile, chosen, root)}
     packed = []
     for artifact, manifest in plan:
@@ -267,6 +325,7 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
         if replaced is not None and replaced.artifact.fingerprint != model.artifact.fingerprint:
             zoo.remove(replaced.artifact)
         packed.append(model.name)
+    write_index(zoo)
     return packed
 
 
@@ -347,4 +406,5 @@ def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | No
         zoo.adopt(model.artifact, new)
         zoo.remove(model.artifact)
         moved.append(model.name)
+    write_index(zoo)
     return moved

@@ -259,6 +259,10 @@ class ArtifactStore:
     def path_for(self, kind: str, fp: str) -> Path:
         return self.root / kind / fp[:_FP_DIR_LEN]
 
+    def read(self, folder: Path) -> Artifact:
+        """The artifact in one of this store's folders; an IntegrityError naming the folder when it is damaged."""
+        return self._read(folder)
+
     def _read(self, folder: Path, planned: Planned | None = None) -> Artifact:
         """The artifact in `folder`; IntegrityError naming the folder when its manifest cannot be read or does not
         give its own fingerprint (naming the fields that differ from a `planned` build's, when given)."""
@@ -386,6 +390,9 @@ class ArtifactStore:
                     f"{name}: content changed (sha256 {actual['sha256'][:12]}…, manifest {expected['sha256'][:12]}…)"
                 )
         problems.extend(f"{name}: not listed in the manifest" for name in on_disk)
+        for folder, dirs, files in os.walk(artifact.path):  # never follows a link, so a loop ends
+            links = [n for n in (*dirs, *files) if (Path(folder) / n).is_symlink()]
+            problems.extend(f"{(Path(folder) / n).relative_to(artifact.path)}: a link, not a file" for n in links)
         return problems
 
     def check_inputs(self, artifacts: Mapping[str, Artifact], made_by: Mapping[str, str] = COMMANDS) -> None:

@@ -38,6 +38,8 @@ def models_list(
 
     names = [profile] if profile else zoo.profiles()
     models = [model for name in names for model in zoo.shipped(name)]
+    for model in models:  # every file against its manifest: a damaged model is an error here too
+        zoo.check(model, zoo.store(model.profile))
     out_console.print(zoo_table(models, set(zoo.orphans(models))))
 
 
