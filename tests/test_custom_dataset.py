@@ -142,15 +142,29 @@ test = ["test.csv"]
         (lambda t: t + "colour = 1\n", r"dataset.toml: files.colour: unknown field"),
         (
             lambda t: t.replace('test = ["test.csv"]', 'test = ["./train.csv"]'),
-            r"dataset.toml: files.train and files.test both name './train.csv': test numbers would measure "
-            r"training data; .*allow_shared_files = true",
+            r"dataset.toml: files.train 'train.csv' and files.test './train.csv' hold the same bytes: test numbers "
+            r"would measure training data; .*allow_shared_files = true",
+        ),
+        (
+            lambda t: t.replace('test = ["test.csv"]', 'test = ["sub/../train.csv"]'),
+            r"files.train 'train.csv' and files.test 'sub/../train.csv' hold the same bytes",
+        ),
+        (lambda t: t.replace('test = ["test.csv"]', 'test = ["link.csv"]'), r"and files.test 'link.csv' hold the same"),
+        (lambda t: t.replace('test = ["test.csv"]', 'test = ["copy.csv"]'), r"and files.test 'copy.csv' hold the same"),
+        (
+            lambda t: t.replace('train = ["train.csv"]', 'train = ["train.csv", "copy.csv"]'),
+            r"files.train 'train.csv' and files.train 'copy.csv' hold the same bytes: its rows would count twice",
         ),
     ],
-    ids=["missing-field", "unknown-unit", "name-clash", "negative-step", "missing-file", "unknown-field", "shared"],
-)
+    ids=["missing-field", "unknown-unit", "name-clash", "negative-step", "missing-file", "unknown-field", "shared",
+         "other-spelling", "link", "copy", "twice-in-one-part"],
+)  # fmt: skip
 def test_a_bad_dataset_toml_is_one_line_naming_file_and_field(tmp_path: Path, edit, message: str) -> None:
-    for part in ("train", "val", "test"):
-        (tmp_path / f"{part}.csv").write_text("time,agent_id,x,y\n0,1,0,0\n0.4,1,0.5,0\n")
+    for i, part in enumerate(("train", "val", "test")):
+        (tmp_path / f"{part}.csv").write_text(f"time,agent_id,x,y\n0,1,{i},0\n0.4,1,{i + 0.5},0\n")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "link.csv").symlink_to(tmp_path / "train.csv")
+    (tmp_path / "copy.csv").write_bytes((tmp_path / "train.csv").read_bytes())
     (tmp_path / "dataset.toml").write_text(edit(GOOD))
     result = CliRunner().invoke(app, ["ingest", "--dataset", str(tmp_path / "dataset.toml"), "--root", str(tmp_path)])
     assert result.exit_code in (1, 2), result.output
@@ -162,11 +176,12 @@ def test_a_bad_dataset_toml_is_one_line_naming_file_and_field(tmp_path: Path, ed
 def test_a_shared_file_is_accepted_when_the_toml_says_so_and_changes_no_fingerprint(tmp_path: Path) -> None:
     from fftool.dataset.custom import load_dataset
 
-    for part in ("train", "val", "test"):
-        (tmp_path / f"{part}.csv").write_text("time,agent_id,x,y\n0,1,0,0\n0.4,1,0.5,0\n")
+    for i, part in enumerate(("train", "val", "test")):
+        (tmp_path / f"{part}.csv").write_text(f"time,agent_id,x,y\n0,1,{i},0\n0.4,1,{i + 0.5},0\n")
     (tmp_path / "a.toml").write_text(GOOD)
     (tmp_path / "b.toml").write_text(GOOD.replace("[columns]", "allow_shared_files = true\n\n[columns]"))
     assert load_dataset(tmp_path / "a.toml").input_hashes() == load_dataset(tmp_path / "b.toml").input_hashes()
     shared = GOOD.replace('val = ["val.csv"]', 'val = ["train.csv"]')
     (tmp_path / "c.toml").write_text(shared.replace("[columns]", "allow_shared_files = true\n\n[columns]"))
     assert load_dataset(tmp_path / "c.toml").spec.files.val == ["train.csv"]
+    load_dataset(tmp_path / "c.toml").input_hashes()  # accepted knowingly

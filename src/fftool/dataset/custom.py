@@ -77,8 +77,9 @@ class DatasetSpec(_Strict):
     max_gap_s: float | None = Field(None, gt=0)
     scene_image: str | None = None
     homography: str | None = None  # 3×3 text matrix, image pixel -> world metres (like ETH's H.txt)
-    # A file named by two parts (or twice by one) is refused: test numbers would measure training data. Set
-    # true to accept it knowingly (not part of any fingerprint: it changes no data).
+    # Two files of the same bytes (one file named twice, by another spelling, a link or a copy) are refused:
+    # across parts test numbers would measure training data, within one its rows would count twice. Set true
+    # to accept it knowingly (not part of any fingerprint: it changes no data).
     allow_shared_files: bool = False
 
     @field_validator("name")
@@ -87,27 +88,6 @@ class DatasetSpec(_Strict):
         if name in RESERVED:
             raise ValueError(f"{name!r} is an ETH/UCY benchmark name; choose another")
         return name
-
-    @model_validator(mode="after")
-    def _parts_share_no_file(self) -> DatasetSpec:
-        if self.allow_shared_files:
-            return self
-        seen: dict[str, str] = {}
-        for part in PARTS:
-            for name in getattr(self.files, part):
-                key = Path(name).as_posix().removeprefix("./")
-                if key in seen:
-                    raise ValueError(
-                        f"files.{seen[key]} and files.{part} both name {name!r}: "
-                        + (
-                            "test numbers would measure training data"
-                            if seen[key] != part
-                            else "its rows would count twice"
-                        )
-                        + "; give each part its own files, or set allow_shared_files = true to accept it"
-                    )
-                seen[key] = part
-        return self
 
     @model_validator(mode="after")
     def _image_with_homography(self) -> DatasetSpec:
@@ -152,10 +132,22 @@ class Dataset:
         described = self.spec.model_dump(mode="json", exclude={"scene_image", "homography", "allow_shared_files"})
         hashes = {"dataset": hashlib.sha256(json.dumps(described, sort_keys=True).encode()).hexdigest()}
         hashes["resampling"] = str(RESAMPLING_VERSION)  # how to_steps puts the files on the grid
+        seen: dict[str, tuple[str, str]] = {}
         for part, source, path in self.files():
             if not path.is_file():
                 raise RawDataError(path, f"file not found (files.{part} of {self.path})")
-            hashes[f"dataset/{part}/{source}"] = _sha256(path)
+            digest = hashes[f"dataset/{part}/{source}"] = _sha256(path)
+            if digest in seen and not self.spec.allow_shared_files:
+                first_part, first = seen[digest]
+                harm = (
+                    "test numbers would measure training data" if first_part != part else "its rows would count twice"
+                )
+                raise RawDataError(
+                    self.path,
+                    f"files.{first_part} {first!r} and files.{part} {source.split('/', 1)[1]!r} hold the same bytes: "
+                    f"{harm}; give each part its own files, or set allow_shared_files = true to accept it",
+                )
+            seen.setdefault(digest, (part, source.split("/", 1)[1]))
         return hashes
 
     def scene_hashes(self) -> dict[str, str]:
