@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from fftool.api import OnlinePredictor, load, predict_tracks
 from fftool.cli import app
 from fftool.dataset.stream import DetectionBuffer
-from fftool.errors import InputError
+from fftool.errors import FftoolError, InputError, UsageError
 
 from .conftest import REAL_RAW
 
@@ -213,3 +213,44 @@ def test_generated_streams_give_finite_futures_or_one_clear_error_and_keep_the_s
             event(f"predicted {min(len(result.agents), 1)}")
 
     check()
+
+
+def test_an_update_that_fails_half_way_leaves_the_predictor_as_it_was(tiny: dict[str, object]) -> None:
+    """A goal variant's update without a goal for one agent fails after its detections were buffered and its
+    clock moved: once the retry with the goal was refused as 'not after the last update'."""
+    model = load(tiny["dr"], root=tiny["root"])
+    online, clean = OnlinePredictor(model, k=3), OnlinePredictor(model, k=3)
+    goals = {1: (9.0, 0.0), 2: (0.0, 9.0)}
+    for t in np.arange(8) * 0.4:
+        for predictor in (online, clean):
+            predictor.update(float(t), {1: (t, 0.0), 2: (0.0, t)}, goals=goals)
+    with pytest.raises(FftoolError, match="no goal given for agent"):
+        online.update(3.2, {1: (3.2, 0.0), 2: (0.0, 3.2)}, goals={1: (9.0, 0.0)})
+    got, expected = (p.update(3.2, {1: (3.2, 0.0), 2: (0.0, 3.2)}, goals=goals) for p in (online, clean))
+    assert np.array_equal(got.futures, expected.futures)
+
+
+def test_two_threads_updating_one_predictor_get_a_clear_refusal(
+    tiny: dict[str, object], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import threading
+
+    model = load(tiny["baseline"], root=tiny["root"])
+    online = OnlinePredictor(model, k=3)
+    inside, release = threading.Event(), threading.Event()
+    checked = online._checked
+
+    def slow(*args: object) -> object:
+        inside.set()
+        release.wait(10)
+        return checked(*args)
+
+    monkeypatch.setattr(online, "_checked", slow)
+    first = threading.Thread(target=online.update, args=(0.0, {1: (0.0, 0.0)}))
+    first.start()
+    inside.wait(10)
+    with pytest.raises(UsageError, match="called again while an update runs"):
+        online.update(0.4, {1: (0.4, 0.0)})
+    release.set()
+    first.join(10)
+    assert online.buffer.last_time_s == 0.0

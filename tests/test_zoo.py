@@ -169,7 +169,7 @@ def test_rekey_refuses_models_whose_training_inputs_changed_upstream(
     profile = tiny["pipelines"] / "tiny.toml"
     profile.write_text(profile.read_text() + "\n[windows]\nobs_len = 10\n")
     assert len(zoo.orphans(zoo.shipped("tiny"))) == 4
-    with pytest.raises(FftoolError, match="trained with other parameters \\(windows.obs_len\\); retrain it"):
+    with pytest.raises(FftoolError, match=r"trained with other parameters \(windows\.obs_len\); retrain it"):
         zoo.rekey("tiny")
 
 

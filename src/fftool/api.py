@@ -11,6 +11,8 @@ gets the same numbers here for the same model and seed. Nothing here needs the c
 
 from __future__ import annotations
 
+import copy
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -359,6 +361,9 @@ class OnlineFutures:
         return _table(np.full(len(self.agents), self.time_s), self.agents, self.goals, self.futures)
 
 
+Detections = Mapping[object, tuple[float, float]]  # agent id -> (x, y) metres
+
+
 class OnlinePredictor:
     """A trained model in a control loop: feed detections as they come, get K futures per agent in view.
 
@@ -369,7 +374,10 @@ class OnlinePredictor:
     Each update predicts at its own time for every agent detected then with positions at all obs_len grid
     points of the model's step before it (interpolated from the detections, bridging gaps up to max_gap_s):
     the numbers `predict_tracks(..., at=[time_s])` gives for the detections so far, with the same seed.
-    Memory is bounded (dataset/stream.py); a bad update is refused with an InputError and changes nothing.
+    Memory is bounded (dataset/stream.py). An update is all or nothing: one refused (an InputError) or failing
+    (a goal variant's goal missing) leaves the predictor as it was, so the corrected update is taken.
+    Not for several threads at once: a second `update` while one runs is refused with a UsageError (give each
+    thread its own predictor, or serialise the calls).
     """
 
     def __init__(
@@ -400,6 +408,7 @@ class OnlinePredictor:
         self.max_gap_s = float(max_gap_s)
         self.buffer = DetectionBuffer((model.obs_len - 1) * model.step_s + self.max_gap_s, self.max_gap_s)
         self.id_kind: type | None = None  # str or int, fixed by the first detection
+        self._busy = threading.Lock()
 
     def update(
         self,
@@ -411,6 +420,23 @@ class OnlinePredictor:
 
         goals: for goal variants, one (x, y) per agent detected now: used before any goal sampler's goals (an
         agent without one gets the sampler's K goals)."""
+        if not self._busy.acquire(blocking=False):
+            raise UsageError("OnlinePredictor.update: called again while an update runs (one predictor per thread)")
+        before = copy.copy(self.buffer), self.id_kind  # add() replaces the buffer's arrays, never edits them
+        try:
+            return self._update(time_s, detections, goals)
+        except BaseException:
+            self.buffer, self.id_kind = before
+            raise
+        finally:
+            self._busy.release()
+
+    def _update(
+        self,
+        time_s: float,
+        detections: Mapping[object, tuple[float, float]],
+        goals: Mapping[object, tuple[float, float]] | None,
+    ) -> OnlineFutures:
         agents, xy = self._checked(time_s, detections)
         if goals is not None:
             _positions(goals, [a for a in agents if a in goals], "goal of agent", time_s)
