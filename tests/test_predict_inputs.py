@@ -97,3 +97,17 @@ def test_goals_far_away_are_refused(tiny_model: tuple[Path, str], tmp_path: Path
     result = _predict(tiny_model, tmp_path, _walkers(tmp_path / "t.csv"), "--goals", str(goals))
     assert result.exit_code == 1 and "agent 1: goal" in result.output
     assert np.isfinite(read_goals(goals)["x"]).all()
+
+
+@pytest.mark.parametrize("flag", ["--plot", "--animate"])
+def test_a_figure_path_that_cannot_be_written_is_refused_before_predicting(
+    tiny_model: tuple[Path, str],  # noqa: F811
+    tmp_path: Path,
+    flag: str,
+) -> None:
+    """Once checked only after the futures were written: the Parquet stayed behind and the command failed."""
+    (tmp_path / "notes.txt").write_text("a file, not a folder")
+    extra = [flag, str(tmp_path / "notes.txt" / "f.gif")] + (["--at", "all"] if flag == "--animate" else [])
+    result = _predict(tiny_model, tmp_path, _walkers(tmp_path / "t.csv"), *extra)
+    assert result.exit_code == 2 and "notes.txt is a file, not a folder" in " ".join(result.output.split())
+    assert not (tmp_path / "f.parquet").exists()

@@ -56,3 +56,17 @@ def replacing_folder(out: Path) -> Iterator[Path]:
             shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(partial, ignore_errors=True)
+
+
+def check_place(out: Path, flag: str) -> None:
+    """Refuse (UsageError), before any work, an output path that could not be written: one under a file, a
+    folder where a file goes, or a link (replacing it would put a file where the user's link was)."""
+    from fftool.errors import UsageError
+
+    if out.is_symlink():
+        raise UsageError(f"{flag} {out}: a symbolic link; give the file it points to, or a new path")
+    if out.is_dir():
+        raise UsageError(f"{flag} {out}: a folder; give a file name")
+    blocked = next((parent for parent in out.parents if parent.exists() and not parent.is_dir()), None)
+    if blocked is not None:
+        raise UsageError(f"{flag} {out}: {blocked} is a file, not a folder")

@@ -122,6 +122,10 @@ def predict(
     if (scene_image is None) != (homography is None):
         raise UsageError("--scene-image and --homography go together: the image and its world->pixel matrix")
     check_out(out)
+    if plot is not None:
+        from fftool.reporting.plots import check_figure_out
+
+        check_figure_out(plot, "--plot")
     if animate is not None:
         from fftool.reporting.animation import check_out as check_animation
 

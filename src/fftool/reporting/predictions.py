@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 from fftool import __version__
 from fftool.dataset.scene_images import SceneImage, project
 from fftool.errors import UsageError
-from fftool.outputs import replacing_file
+from fftool.outputs import check_place, replacing_file
 
 MARK = b"fftool.predictions"  # Parquet metadata key: the file is a prediction fftool wrote and may replace
 
@@ -34,9 +34,8 @@ def _written_by_fftool(path: Path) -> bool:
 def check_out(out: Path) -> None:
     """Refuse (UsageError) an --out that exists and is not an fftool prediction file, or is a symbolic link
     (replacing it would put a file where the user's link was, whatever it points to)."""
-    if out.is_symlink():
-        raise UsageError(f"--out {out}: a symbolic link; give the file it points to, or a new path")
-    if out.exists() and (out.is_dir() or not _written_by_fftool(out)):
+    check_place(out, "--out")
+    if out.exists() and not _written_by_fftool(out):
         raise UsageError(
             f"--out {out}: exists and is not a prediction file fftool wrote; refusing to overwrite it "
             "(choose another --out)"
