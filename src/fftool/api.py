@@ -132,6 +132,8 @@ class Model:
 MAX_ABS_COORDINATE_M = 1e5
 # The most future coordinates one call may return (B · K · A · pred_len · 2 floats: 2 GiB).
 MAX_OUTPUT_VALUES = 2**28
+# The most memory the agent-aware attention of one window may ask for: K · heads · (agents · obs_len)² floats.
+MAX_ATTENTION_BYTES = 2**31
 
 
 def check_k(k: object, agent_slots: int, pred_len: int) -> None:
@@ -283,6 +285,13 @@ def draw_futures(
     ids are `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`."""
     check_k(k, len(found.xy), model.pred_len)
     check_seed(seed)
+    crowd = int(np.bincount(found.window).max()) if len(found.window) else 0
+    need = int(k) * model.trained.config.n_heads * (crowd * model.obs_len) ** 2 * 4
+    if need > MAX_ATTENTION_BYTES:
+        raise InputError(
+            f"{crowd} agents at one time with k = {k} ask about {need / 2**30:.0f} GiB for the model's attention (at "
+            f"most {MAX_ATTENTION_BYTES / 2**30:.0f} GiB): predict fewer agents at a time, or lower k"
+        )
     far = _off_limits(found.xy).any(1)
     if far.any():
         m = int(np.argmax(far))
