@@ -61,8 +61,8 @@ ORDER = [
     "fftool train-cvae",
     "fftool train-dlow",  # over the dr CVAE train-cvae built
     "fftool evaluate",
-    "fftool models",
     "fftool models pack",  # trains the checkout's tiny cpu profile for zara1, then ships it in models/
+    "fftool models",  # lists what pack shipped
     "fftool models install",
     "fftool models list",
     "fftool models rekey",

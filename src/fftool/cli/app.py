@@ -237,16 +237,6 @@ BenchmarksOption = Annotated[
         "--benchmarks", help=f"Comma-separated benchmarks ({', '.join(BENCHMARKS)}), or all.", callback=check_benchmarks
     ),
 ]
-# The spelling of fftool 0.x, kept so old scripts run: `-b zara1` / `--benchmark zara1` mean `--benchmarks zara1`.
-OldBenchmarkOption = Annotated[
-    str | None,
-    typer.Option("--benchmark", "-b", hidden=True, callback=lambda v: v if v is None else check_benchmarks(v)),
-]
-
-
-def chosen_benchmarks(benchmarks: str, old_spelling: str | None) -> list[str]:
-    """The benchmarks a command runs on: `--benchmarks`, or the old `-b/--benchmark` when that was given."""
-    return (old_spelling or benchmarks).split(",")
 
 
 def check_variant(value: str) -> str:

@@ -12,7 +12,6 @@ from fftool.cli.app import (
     BenchmarksOption,
     ConfigOption,
     DeviceOption,
-    OldBenchmarkOption,
     OptionalBenchmarks,
     OutOption,
     ProtocolOption,
@@ -24,7 +23,6 @@ from fftool.cli.app import (
     build_stages,
     check_predictor,
     check_threshold,
-    chosen_benchmarks,
     open_store,
 )
 
@@ -180,7 +178,6 @@ app.command(
 @boundary
 def plot(
     benchmarks: BenchmarksOption = "zara1",
-    old_benchmark: OldBenchmarkOption = None,
     variants: Annotated[
         str, typer.Option("--variants", help="Predictors side by side: baseline, goal, dr, re, cv.")
     ] = "baseline,dr,re",
@@ -226,11 +223,11 @@ def plot(
 
         if animate not in FORMATS:  # a format, never a path: the file is named inside --out
             raise UsageError(f"--animate {animate}: expected one of {', '.join(FORMATS)}")
-        for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+        for benchmark in benchmarks.split(","):
             check_animation(out / f"animation_{benchmark}.{animate}")
     predictors = [check_predictor(v.strip()) for v in variants.split(",") if v.strip()]
     cfg = load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None)
-    names = chosen_benchmarks(benchmarks, old_benchmark)
+    names = benchmarks.split(",")
     if windows and len(names) > 1:
         raise UsageError("--windows names windows of one benchmark; give one in --benchmarks")
     for benchmark in names:

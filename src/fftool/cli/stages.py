@@ -12,7 +12,6 @@ from fftool.cli.app import (
     ConfigOption,
     DeviceOption,
     ForceOption,
-    OldBenchmarkOption,
     ProtocolOption,
     RootOption,
     SetOption,
@@ -21,7 +20,6 @@ from fftool.cli.app import (
     build_stages,
     check_predictor,
     check_variant,
-    chosen_benchmarks,
     run_stages,
 )
 from fftool.dataset.scenes import BENCHMARKS
@@ -139,7 +137,6 @@ def maps(
 @boundary
 def train_goal(
     benchmarks: BenchmarksOption = "zara1",
-    old_benchmark: OldBenchmarkOption = None,
     device: DeviceOption = "auto",
     config: ConfigOption = None,
     set_: SetOption = None,
@@ -151,7 +148,7 @@ def train_goal(
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
-    for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+    for benchmark in benchmarks.split(","):
         built = run_stages(["goal"], config, set_, root, force, device, benchmark)
         if leader():  # under torchrun, rank 0 alone prints
             out_console.print(training_table(built["goal"], f"goal U-Net ({benchmark})"))
@@ -163,7 +160,6 @@ def train_goal(
 @boundary
 def sample_goals(
     benchmarks: BenchmarksOption = "all",
-    old_benchmark: OldBenchmarkOption = None,
     device: DeviceOption = "auto",
     config: ConfigOption = None,
     set_: SetOption = None,
@@ -176,7 +172,7 @@ def sample_goals(
 
     artifacts = {
         benchmark: run_stages(["goals"], config, set_, root, force, device, benchmark)["goals"]
-        for benchmark in chosen_benchmarks(benchmarks, old_benchmark)
+        for benchmark in benchmarks.split(",")
     }
     out_console.print(goal_fde_table(artifacts))
 
@@ -198,7 +194,6 @@ VariantOption = Annotated[
 @boundary
 def train_cvae(
     benchmarks: BenchmarksOption = "zara1",
-    old_benchmark: OldBenchmarkOption = None,
     variant: VariantOption = "baseline",
     device: DeviceOption = "auto",
     config: ConfigOption = None,
@@ -211,7 +206,7 @@ def train_cvae(
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
-    for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+    for benchmark in benchmarks.split(","):
         built = run_stages(["cvae"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
         if leader():  # under torchrun, rank 0 alone prints
             out_console.print(training_table(built["cvae"], f"CVAE {variant} ({benchmark})"))
@@ -224,7 +219,6 @@ def train_cvae(
 @boundary
 def train_dlow(
     benchmarks: BenchmarksOption = "zara1",
-    old_benchmark: OldBenchmarkOption = None,
     variant: VariantOption = "baseline",
     device: DeviceOption = "auto",
     config: ConfigOption = None,
@@ -239,7 +233,7 @@ def train_dlow(
     from fftool.reporting.summaries import training_table
     from fftool.ui import out_console
 
-    for benchmark in chosen_benchmarks(benchmarks, old_benchmark):
+    for benchmark in benchmarks.split(","):
         built = run_stages(["dlow"], config, set_, root, force, device, benchmark, {"cvae.variant": variant})
         out_console.print(training_table(built["dlow"], f"DLow over CVAE {variant} ({benchmark})"))
 
@@ -251,7 +245,6 @@ def train_dlow(
 @boundary
 def evaluate(
     benchmarks: BenchmarksOption = "zara1",
-    old_benchmark: OldBenchmarkOption = None,
     variant: Annotated[
         str,
         typer.Option(
@@ -275,6 +268,6 @@ def evaluate(
     cfg = predictor_config(load_config(config, set_, {"evaluate.protocol": protocol} if protocol else None), variant)
     built = [
         build_stages(cfg, ["evaluate"], root, force, device, benchmark)["evaluate"]
-        for benchmark in chosen_benchmarks(benchmarks, old_benchmark)
+        for benchmark in benchmarks.split(",")
     ]
     out_console.print(evaluation_table(built))

@@ -6,7 +6,7 @@ ground truth moved by the goal module's own errors (`learning.goal_errors`, from
 validation part), the best epoch then chosen under the fair protocol on validation. Writes: `cvae/<fp>/model.pt` (best
 weights by validation minADE, the resolved config, everything needed to rebuild the model),
 `log.csv` and the same per-epoch curves as TensorBoard events in `tensorboard/` (written live to the
-scratch folder while training: `tensorboard --logdir <root>`). Run: `fftool train-cvae --benchmark zara1 --variant dr`.
+scratch folder while training: `tensorboard --logdir <root>`). Run: `fftool train-cvae --benchmarks zara1 --variant dr`.
 
 Many windows are batched per optimizer step (padded agents, masked attention and losses) instead of
 the official one-window-at-a-time loop. A checkpoint is written after every epoch to the store's

@@ -5,7 +5,7 @@ samples with (dr: desired speeds; re: and groups) and, for goal variants under t
 protocol, the sampled `goals`.
 Writes: `evaluate/<fp>/predictions.parquet` (every sample of every agent-window, with its per-agent
 metrics, so tables can be recomputed without sampling again) and the summary in the manifest.
-Run: `fftool evaluate --benchmark zara1 --variant dr --protocol paper`.
+Run: `fftool evaluate --benchmarks zara1 --variant dr --protocol paper`.
 
 Sampling batches many windows per forward pass (padded agents, masked attention), draws the K samples
 of a window in one pass with the context shared between samples, and recomputes the social forces

@@ -3,7 +3,7 @@
 Reads: windows (train and val parts of the benchmark) and maps. Writes: `goal/<fp>/model.pt` (best
 weights by validation goal-FDE@K, with the resolved config), `log.csv` (every loss term per epoch) and
 the same curves as TensorBoard events in `tensorboard/`.
-Run: `fftool train-goal --benchmark zara1`. Checkpoints go to the store's scratch folder every epoch, so
+Run: `fftool train-goal --benchmarks zara1`. Checkpoints go to the store's scratch folder every epoch, so
 an interrupted run resumes where it stopped.
 """
 
