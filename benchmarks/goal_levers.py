@@ -46,12 +46,15 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "target_sigma_0.5": ([_ARGMAX, "goal.target_sigma_cells=0.5"], ["corner"]),
     "reversal_0.5": ([_ARGMAX, "goal.time_reversal=0.5"], ["corner"]),
     "profile": ([], []),  # the profile as it is: the chosen recipe
-    "profile_uni_map": ([], ["uni_map"]),  # the same with univ's map for uni_examples (Goal-SAR's choice)
+    "profile_uni_map": ([], ["uni_map"]),
+    "profile_rerun": ([], []),  # the profile again with today's code: the reference the later levers meet  # the same with univ's map for uni_examples (Goal-SAR's choice)
     # Capacity, against "profile": 1.5× the widths (2.25× the multiply-adds), and three supervised output maps.
     "wide_1.5": (["goal.widths=[12, 24, 24, 48]"], []),
     "supervised_3": (["goal.supervised_steps=3"], []),
     # Resolution: 0.25 m cells in a 64-cell crop (±8 m; 1.8× the multiply-adds); the mode still over 5 × 5 cells.
     "cells_0.25": (["goal.resolution_m=0.25", "goal.crop_cells=64"], []),
+    # Steps, against "profile": 4× the training windows (16 epochs of 9,216), the same cosine stretched.
+    "steps_4x": (["goal.epochs=16", "goal.max_train=9216"], []),
     # Input, against "profile": the training part's occupancy of the same place as one more map channel.
     "scene_prior": (['goal.scene_prior="occupancy"'], []),
 }

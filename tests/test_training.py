@@ -56,18 +56,16 @@ def test_a_checkpoint_resumes_after_its_last_epoch(tmp_path: Path, warnings: lis
     assert warnings == [] and sorted(p.name for p in tmp_path.iterdir()) == ["last.pt"]
 
 
-def test_the_temporary_file_belongs_to_its_save(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_save_leaves_others_temporaries_alone_and_the_same_weights_are_the_same_bytes(tmp_path: Path) -> None:
     other = tmp_path / ".last.pt.x1y2z3.partial"  # another process, half-way through its own save
     other.write_bytes(b"half")
-    written: list[str] = []
-    save = torch.save
-    monkeypatch.setattr(torch, "save", lambda obj, f: (written.append(Path(f).name), save(obj, f)))
-    save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
-    save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
-    assert len(set(written)) == 2 and all(n.startswith(".last.pt.") and n.endswith(".partial") for n in written)
-    assert torch.load(tmp_path / "last.pt", weights_only=True) == {"epoch": 0}
+    state = {"epoch": 0, "weights": torch.arange(4.0)}
+    save_checkpoint(tmp_path / "last.pt", state)
+    save_checkpoint(tmp_path / "elsewhere" / "model.pt", state)  # torch would name its archive after the path
+    assert (tmp_path / "last.pt").read_bytes() == (tmp_path / "elsewhere" / "model.pt").read_bytes()
+    assert torch.load(tmp_path / "last.pt", weights_only=True)["epoch"] == 0
     assert other.read_bytes() == b"half"
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".last.pt.x1y2z3.partial", "last.pt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".last.pt.x1y2z3.partial", "elsewhere", "last.pt"]
 
 
 def test_a_failed_save_keeps_the_old_checkpoint_and_no_partial_file(
@@ -75,11 +73,12 @@ def test_a_failed_save_keeps_the_old_checkpoint_and_no_partial_file(
 ) -> None:
     save_checkpoint(tmp_path / "last.pt", {"epoch": 0})
 
-    def full_disk(obj: object, f: Path) -> None:
-        Path(f).write_bytes(b"PK\x03\x04")
+    def full_disk(self: Path, data: bytes) -> None:
+        with self.open("wb") as handle:
+            handle.write(data[:4])
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(torch, "save", full_disk)
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
     with pytest.raises(OSError, match="No space left"):
         save_checkpoint(tmp_path / "last.pt", {"epoch": 1})
     assert [p.name for p in tmp_path.iterdir()] == ["last.pt"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import io
 import math
 import os
 import random
@@ -132,9 +133,13 @@ def lr_factor(
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     """Write atomically (`outputs.replacing_file`): a killed process never leaves a truncated checkpoint, and
-    two processes never write into or rename each other's temporary file."""
+    two processes never write into or rename each other's temporary file. Serialised in memory first: torch
+    names the archive inside the file after the path it writes, so the temporary's random name would make the
+    same weights two different files."""
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
     with replacing_file(path) as unfinished:
-        torch.save(state, unfinished)
+        unfinished.write_bytes(buffer.getvalue())
 
 
 def _load(path: Path, device: torch.device) -> dict[str, Any] | None:
