@@ -85,12 +85,17 @@ class Shipped:
         return planned(cfg or self.profile_config(), self.kind, self.variant, self.benchmark).fingerprint
 
 
-def planned(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> Resolved:
-    """The build `reproduce` plans for one trained stage (of a variant's CVAE, for cvae and dlow)."""
+def chain(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> dict[str, Resolved]:
+    """Every build `reproduce` plans up to one trained stage (of a variant's CVAE, for cvae and dlow), by stage."""
     from fftool import pipeline
 
     chosen = cfg if variant is None else predictor_config(cfg, variant)
-    return next(item for item in pipeline.resolve(chosen, [kind], benchmark) if item.stage.name == kind)
+    return {item.stage.name: item for item in pipeline.resolve(chosen, [kind], benchmark)}
+
+
+def planned(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> Resolved:
+    """The build `reproduce` plans for one trained stage."""
+    return chain(cfg, kind, variant, benchmark)[kind]
 
 
 def profile_config(profile: str) -> PipelineConfig:
@@ -273,24 +278,16 @@ def trained_by(cfg: PipelineConfig, benchmark: str) -> list[tuple[str, str | Non
     return [(kind, variant, planned(cfg, kind, variant, benchmark).fingerprint) for kind, variant in wanted]
 
 
-def lineage(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> dict[str, Any]:
-    """What a trained model was built from, stage by stage upstream of it: each stage's parameters and the raw
-    files it hashed (not the code versions, which a re-key may change). Kept in the shipped manifest's stats,
-    so a re-key can tell a code change from a change of the model's training inputs."""
-    chosen = cfg if variant is None else predictor_config(cfg, variant)
-    chain = {item.stage.name: item for item in _resolve(chosen, kind, benchmark)}
+def lineage(builds: dict[str, Resolved], kind: str) -> dict[str, Any]:
+    """What a trained model was built from, stage by stage upstream of it (`chain`'s builds): each stage's
+    parameters and the raw files it hashed (not the code versions, which a re-key may change). Kept in the
+    shipped manifest's stats, so a re-key can tell a code change from a change of the training inputs."""
     found = {
-        name: {"params": item.params, "raw": {k: v for k, v in item.inputs.items() if k.split("[")[0] not in chain}}
-        for name, item in chain.items()
+        name: {"params": item.params, "raw": {k: v for k, v in item.inputs.items() if k.split("[")[0] not in builds}}
+        for name, item in builds.items()
         if name != kind
     }
     return json.loads(json.dumps(found))  # as the manifest will hold it
-
-
-def _resolve(cfg: PipelineConfig, kind: str, benchmark: str) -> list[Resolved]:
-    from fftool import pipeline
-
-    return pipeline.resolve(cfg, [kind], benchmark)
 
 
 def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
@@ -310,7 +307,7 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
                     f"(`fftool reproduce pipelines/{profile}.toml --benchmarks {benchmark}`)"
                 )
             source.check_inputs({kind: artifact})
-            stats = artifact.manifest.stats | {"lineage": lineage(cfg, kind, variant, benchmark)}
+            stats = artifact.manifest.stats | {"lineage": lineage(chain(cfg, kind, variant, benchmark), kind)}
             plan.append((artifact, replace(artifact.manifest, stats=stats)))
     folder = (root or models_root()) / profile  # made only once every model is found: a failed pack leaves nothing
     folder.mkdir(parents=True, exist_ok=True)
@@ -376,9 +373,9 @@ def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | No
     zoo = store(profile, root)
     moved = []
     for model in shipped(profile, benchmarks, root):
-        item = planned(cfg, model.kind, model.variant, model.benchmark)
-        manifest = model.artifact.manifest
-        today = lineage(cfg, model.kind, model.variant, model.benchmark)
+        builds = chain(cfg, model.kind, model.variant, model.benchmark)
+        item, manifest = builds[model.kind], model.artifact.manifest
+        today = lineage(builds, model.kind)
         if item.fingerprint == manifest.fingerprint:
             if "lineage" not in manifest.stats:
                 check(model, zoo)
