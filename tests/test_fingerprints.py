@@ -166,7 +166,7 @@ def test_the_declarations_say_what_the_stages_read(base: PipelineConfig) -> None
     assert "evaluate.cv_angle_std_deg" in expected["evaluate[cv,paper]"]
     assert "evaluate.cv_angle_std_deg" not in expected["evaluate[dr,paper]"]
     assert not any(key.startswith("dlow.") for key in expected["evaluate[dr,paper]"])
-    assert "dlow.lr" in expected["evaluate[dr+dlow,paper]"] and "dlow.diverse_weight" not in expected["dlow[re]"]
+    assert "dlow.lr" in expected["evaluate[dr+dlow,paper]"] and "dlow.variants" not in expected["dlow[re]"]
     assert "cvae.lr" in expected["dlow[re]"] and "forces.fov_deg" in expected["dlow[re]"]
 
 

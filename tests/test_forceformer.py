@@ -242,15 +242,13 @@ def test_sharing_the_context_between_samples_equals_repeating_it() -> None:
 
 
 def test_output_types_read_the_head_as_documented() -> None:
-    """With a zero head each output type decodes its anchor; a constant head shows what it accumulates."""
+    """A constant head shows what each output type adds it to: the last position, or constant velocity."""
     g = torch.Generator().manual_seed(3)
     past, mask = torch.randn(1, 2, 8, 4, generator=g), torch.ones(1, 2, dtype=torch.bool)
     z, last, step = torch.randn(1, 2, 8, generator=g), past[:, :, -1, :2], torch.tensor([[[0.1, 0.2], [-0.3, 0.0]]])
     steps = torch.arange(1, 13, dtype=torch.float32)[None, None, :, None]
     expected = {
         "offset": last[:, :, None] + 0.5,
-        "scene_norm": torch.full((1, 2, 12, 2), 0.5),
-        "velocity": last[:, :, None] + 0.5 * steps,
         "cv_residual": last[:, :, None] + steps * step[:, :, None] + 0.5,
     }
     for output, positions in expected.items():

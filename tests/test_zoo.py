@@ -226,6 +226,37 @@ def test_rekey_moves_a_model_trained_before_an_option_existed_when_the_profile_l
     assert not zoo.orphans(zoo.shipped("tiny"))
 
 
+def _record_goal_unet_with(tiny: dict[str, Path], key: str, value: object) -> None:
+    """Rewrite the shipped goal U-Net as an older fftool would have packed it, with `key` among its params."""
+    unet = next(m for m in zoo.shipped("tiny") if m.kind == "goal").artifact
+    manifest = json.loads((unet.path / "manifest.json").read_text())
+    manifest["params"][key] = value
+    manifest["fingerprint"] = fingerprint(
+        "goal", pipeline.STAGES["goal"].version, manifest["params"], manifest["inputs"]
+    )
+    older = unet.path.with_name(manifest["fingerprint"][:16])
+    unet.path.rename(older)
+    (older / "manifest.json").write_text(json.dumps(manifest))
+    zoo.write_index(ArtifactStore(tiny["models"] / "tiny"))
+
+
+@pytest.mark.parametrize(("recorded", "moved"), [("kept", True), ("rejected", False)])
+def test_rekey_moves_a_model_recorded_with_a_retired_option_only_at_the_behaviour_kept(
+    tiny: dict[str, Path], monkeypatch: pytest.MonkeyPatch, recorded: str, moved: bool
+) -> None:
+    """An option removed from the code (`zoo.RETIRED`) leaves one behaviour: a model recorded with it was trained
+    as today's code trains and is re-keyed; one recorded with the rejected value is refused."""
+    monkeypatch.setitem(zoo.RETIRED, "goal.old_option", "kept")
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    _record_goal_unet_with(tiny, "old_option", recorded)
+    assert list(zoo.orphans(zoo.shipped("tiny"))) == ["tiny/zara1/goal-unet"]
+    if moved:
+        assert zoo.rekey("tiny") == ["tiny/zara1/goal-unet"] and not zoo.orphans(zoo.shipped("tiny"))
+    else:
+        with pytest.raises(FftoolError, match="trained with other parameters \\(old_option\\)"):
+            zoo.rekey("tiny")
+
+
 def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_made(tiny: dict[str, Path]) -> None:
     """A planner's goals steer the agents it names, by name or from a loaded model; the others get sampled goals."""
     zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])

@@ -262,8 +262,8 @@ class CVAEConfig(_Section):
     k: int = Field(20, gt=0)  # samples from the prior at test time and in the best-of-K loss
     kl_min: float = Field(2.0, ge=0)  # free bits on the per-agent KL (AgentFormer's min_clip)
     # The decoder head's meaning (models/forceformer.py OutputType): AgentFormer's "offset" (sn_out_type
-    # 'norm'), "scene_norm" or "velocity" ('vel'), or fftool's "cv_residual" (over constant velocity).
-    output: Literal["offset", "scene_norm", "velocity", "cv_residual"] = "offset"
+    # 'norm') or fftool's "cv_residual" (over constant velocity).
+    output: Literal["offset", "cv_residual"] = "offset"
     out_init_std: float = Field(0.01, ge=0)  # the output head's N(0, std²) init (AgentFormer: 0.01)
     # Training (AgentFormer: Adam 1e-4, ×0.5 every 10 epochs; ForceFormer trains 50 epochs).
     epochs: int = Field(50, gt=0)
@@ -273,7 +273,7 @@ class CVAEConfig(_Section):
     # step: lr × decay_gamma every decay_every epochs (AgentFormer). cosine: linear warm-up over the first
     # warmup_fraction of the optimizer steps, then a half cosine to 0 at the end of the last epoch. Both
     # are functions of the step count, never of wall-clock time.
-    schedule: Literal["step", "cosine", "constant"] = "step"
+    schedule: Literal["step", "cosine"] = "step"
     decay_every: int = Field(10, gt=0)
     decay_gamma: float = Field(0.5, gt=0, le=1)
     warmup_fraction: float = Field(0.0, ge=0, lt=1)
@@ -316,19 +316,13 @@ class DLowConfig(_Section):
     recon_weight: float = Field(5.0, ge=0)
     kl_weight: float = Field(0.1, ge=0)
     kl_min: float = Field(10.0, ge=0)  # the KL's clamp (free bits), summed over the K codes
-    # agentformer: each ETH/UCY benchmark's own diversity weight and scale and LR schedule (eth 20/10, hotel
-    # 5/5, univ 10/10, zara1 5/5 with a linear schedule, zara2 5/5; a dataset of one's own takes zara1's);
-    # fixed: diverse_weight, d_scale and schedule below for every benchmark.
-    per_benchmark: Literal["agentformer", "fixed"] = "agentformer"
-    diverse_weight: float = Field(5.0, ge=0)
-    d_scale: float = Field(5.0, gt=0)
-    # step: lr × decay_gamma every decay_every epochs; linear: 1 for lr_fix_epochs, then down to ~0 at the
-    # last epoch (AgentFormer's LambdaLR); cosine: fftool's warm-up and half cosine over the step budget.
-    schedule: Literal["step", "linear", "cosine"] = "step"
+    # The diversity weight and scale and the LR schedule are AgentFormer's per benchmark
+    # (learning/dlow_model.AGENTFORMER: eth 20/10, hotel 5/5, univ 10/10, zara1 5/5 with a linear schedule,
+    # zara2 5/5; a dataset of one's own takes zara1's). step: lr × decay_gamma every decay_every epochs;
+    # linear: 1 for lr_fix_epochs, then down to ~0 at the last epoch (AgentFormer's LambdaLR).
     decay_every: int = Field(5, gt=0)
     decay_gamma: float = Field(0.5, gt=0, le=1)
     lr_fix_epochs: int = Field(10, ge=0)
-    warmup_fraction: float = Field(0.0, ge=0, lt=1)
     epochs: int = Field(50, gt=0)
     lr: float = Field(1e-4, gt=0)  # Adam
     grad_clip: float = Field(0.0, ge=0)  # 0 = none (AgentFormer)

@@ -326,6 +326,22 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     return packed
 
 
+# Options removed from the code, with the one behaviour that stayed: a model recorded with that value was trained
+# as today's code trains; one recorded with another value was not, and is refused. (DLow's fixed diversity
+# weight, scale and schedule were recorded at their defaults and read only with per_benchmark = "fixed".)
+RETIRED: dict[str, object] = {
+    "dlow.per_benchmark": "agentformer",
+    "dlow.warmup_fraction": 0.0,
+    "dlow.diverse_weight": 5.0,
+    "dlow.d_scale": 5.0,
+    "dlow.schedule": "step",
+}
+
+
+def _qualified(section: str | None, key: str) -> str:
+    return key if "." in key or section is None else f"{section}.{key}"
+
+
 def _default(section: str | None, key: str) -> object:
     """The default of a record's key: a bare key is `section`'s, a dotted one names its section."""
     name, _, bare = key.rpartition(".")
@@ -337,13 +353,11 @@ def _default(section: str | None, key: str) -> object:
 
 def _changed(today: dict[str, Any], recorded: dict[str, Any], section: str | None) -> list[str]:
     """The keys whose values differ, but for keys the record lacks that today holds at their default (an
-    option added since, whose default is the behaviour the model was trained with)."""
-    keys = {*today, *recorded}
-    return sorted(
-        k
-        for k in keys
-        if today.get(k) != recorded.get(k) and not (k not in recorded and today[k] == _default(section, k))
-    )
+    option added since, whose default is the behaviour the model was trained with) and keys today lacks that
+    the record holds at the behaviour kept when they were retired (`RETIRED`)."""
+    added = {k for k in today if k not in recorded and today[k] == _default(section, k)}
+    retired = {k for k in recorded if k not in today and RETIRED.get(_qualified(section, k), ...) == recorded[k]}
+    return sorted(k for k in {*today, *recorded} - added - retired if today.get(k) != recorded.get(k))
 
 
 def _lineage_changes(today: dict[str, Any], recorded: dict[str, Any]) -> list[str]:

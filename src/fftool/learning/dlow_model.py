@@ -23,11 +23,11 @@ from fftool.models.dlow import DLowLossParts, QNet, dlow_loss
 
 @dataclass(frozen=True)
 class Preset:
-    """What AgentFormer's DLow configs set per dataset (research/agentformer.md §2.2)."""
+    """What AgentFormer's DLow configs set per dataset (its cfg/eth_ucy/<dataset>_agentformer.yml)."""
 
     diverse_weight: float
     d_scale: float
-    schedule: Literal["step", "linear", "cosine"]
+    schedule: Literal["step", "linear"]
     traj_scale: float  # AgentFormer divides positions by this (eth: 2); DLow's loss is computed in those units
 
 
@@ -40,12 +40,10 @@ AGENTFORMER: Final[dict[str, Preset]] = {
 }
 
 
-def preset(cfg: DLowConfig, benchmark: str) -> Preset:
-    """The diversity weight and scale, schedule and units for `benchmark`: AgentFormer's own (a dataset of
-    one's own takes zara1's), or the config's for every benchmark (`per_benchmark = "fixed"`)."""
-    if cfg.per_benchmark == "agentformer":
-        return AGENTFORMER.get(benchmark, AGENTFORMER["zara1"])
-    return Preset(cfg.diverse_weight, cfg.d_scale, cfg.schedule, 1.0)
+def preset(benchmark: str) -> Preset:
+    """AgentFormer's diversity weight and scale, schedule and units for `benchmark` (a dataset of one's own
+    takes zara1's)."""
+    return AGENTFORMER.get(benchmark, AGENTFORMER["zara1"])
 
 
 def build_sampler(cvae_cfg: CVAEConfig, cfg: DLowConfig) -> QNet:

@@ -291,11 +291,9 @@ def kl_divergence(q: Gaussian, p: Gaussian) -> Tensor:
 StepFeatures = Callable[[Tensor, int], Tensor]
 """(positions so far (B, A, s, 2) incl. the last observed, step index s - 1) -> decoder features (B, A, F)."""
 
-OutputType = Literal["offset", "scene_norm", "velocity", "cv_residual"]
+OutputType = Literal["offset", "cv_residual"]
 """What the decoder's 2-vector at step s means (docs/cvae.md, "Output parametrisation"):
 offset: position - last observed position (AgentFormer's sn_out_type 'norm', its zara1 default);
-scene_norm: the position itself in the window's frame (AgentFormer's 'scene_norm');
-velocity: the step's displacement, accumulated from the last observed position (AgentFormer's 'vel');
 cv_residual: position - the constant-velocity extrapolation of the last observed step (fftool's option).
 """
 
@@ -467,10 +465,8 @@ class ForceFormer(nn.Module):
         allowed_all = agent_mask.repeat(1, steps)[:, None, :].expand(B, A, steps * A).clone()
         allowed_all.view(B, A, steps, A).diagonal(dim1=1, dim2=3).fill_(True)  # own tokens, every step
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
-        anchor = last_pos.new_zeros(last_pos.shape) if self.output == "scene_norm" else last_pos
         if self.output == "cv_residual":
             assert last_step is not None, "output 'cv_residual' needs the last observed step"
-        travelled = last_pos.new_zeros(last_pos.shape)  # "velocity": the sum of the steps so far
         outputs = []
         for step in range(steps):
             tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
@@ -481,11 +477,9 @@ class ForceFormer(nn.Module):
                 self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
             delta = self.out(x).float()  # (B, A, 2)
-            if self.output == "velocity":
-                travelled = delta = travelled + delta
-            elif self.output == "cv_residual":
+            if self.output == "cv_residual":
                 delta = delta + (step + 1) * last_step
-            outputs.append(anchor + delta)
+            outputs.append(last_pos + delta)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
 

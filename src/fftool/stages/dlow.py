@@ -46,9 +46,6 @@ from fftool.paper import reads_goal
 from fftool.stages.contract import Reads, Stage, StageContext
 
 NAME: Final = "dlow"
-# The dlow keys a build reads: all but `variants` (which evaluations use a sampler) and, with AgentFormer's
-# per-benchmark settings, the fixed ones those replace.
-_FIXED: Final = frozenset({"diverse_weight", "d_scale", "schedule"})
 
 
 @dataclass
@@ -95,7 +92,7 @@ class _Trainer:
                 self.chosen.schedule,
                 self.first_steps[epoch] + step,
                 self.first_steps[-1],
-                cfg.warmup_fraction,
+                0.0,
                 epoch,
                 cfg.decay_every,
                 cfg.decay_gamma,
@@ -161,7 +158,7 @@ def train(
     sampler = build_sampler(trained.config, cfg).to(device)
     trainer = _Trainer(
         cfg=cfg,
-        chosen=preset(cfg, benchmark),
+        chosen=preset(benchmark),
         trained=trained,
         model=sampler,
         optimizer=torch.optim.Adam(sampler.parameters(), lr=cfg.lr),
@@ -211,8 +208,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The dlow settings, the CVAE it samples and the data that CVAE trained on."""
     variant = cfg.cvae.variant
-    unread = {"variants"} | (_FIXED if variant_section(cfg, "dlow").per_benchmark == "agentformer" else set())
-    params = tuple(f"dlow.{key}" for key in DLowConfig.model_fields if key not in unread)
+    params = tuple(f"dlow.{key}" for key in DLowConfig.model_fields if key != "variants")  # evaluations read it
     artifacts = training_inputs(variant) | {"cvae": None}
     if reads_goal(variant) and cfg.goal_training.source == "module":  # as its CVAE: the module's goals and errors
         params, artifacts = (*params, "goal_training.*"), artifacts | {"goals": None}
