@@ -23,7 +23,7 @@ import torch
 
 from fftool.artifacts.schema import COMMANDS, DLOW_LOG_FILE, DLOW_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
-from fftool.config import DLowConfig, GoalTrainingConfig, PipelineConfig, variant_section
+from fftool.config import DLowConfig, GoalTrainingConfig, PipelineConfig
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, load_model, sample, val_metrics
 from fftool.learning.dlow_model import Preset, build_sampler, preset, training_loss
