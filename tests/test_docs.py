@@ -100,3 +100,25 @@ def test_a_number_edited_by_hand_is_caught(tmp_path: Path, monkeypatch: pytest.M
     edited = tmp_path / page.name
     edited.write_text(text.replace(generated, generated.replace(number, f"{float(number) + 0.001:.3f}", 1)))
     assert _cog_check(edited) != 0
+
+
+PAGES = sorted([ROOT / "README.md", ROOT / "CHANGELOG.md", *(ROOT / "docs").rglob("*.md")])
+
+
+def broken_links(page: Path) -> list[str]:
+    """Relative link targets of a Markdown page (outside code blocks) that name no file or folder."""
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    targets = (m.group(1).split("#", 1)[0] for m in re.finditer(r"\]\(([^)\s]+)\)", text))
+    return [t for t in targets if t and not re.match(r"[a-z]+:", t) and not (page.parent / t).exists()]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_names_a_file_in_the_repository(page: Path) -> None:
+    assert broken_links(page) == []
+
+
+def test_a_link_to_a_missing_file_is_caught(tmp_path: Path) -> None:
+    (tmp_path / "here.md").write_text("x")
+    page = tmp_path / "page.md"
+    page.write_text("[ok](here.md#part) [gone](research/agentformer.md) [web](https://x.org) [anchor](#top)\n")
+    assert broken_links(page) == ["research/agentformer.md"]
