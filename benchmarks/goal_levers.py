@@ -47,7 +47,7 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "reversal_0.5": ([_ARGMAX, "goal.time_reversal=0.5"], ["corner"]),
     "profile": ([], []),  # the profile as it is: the chosen recipe
     "profile_uni_map": ([], ["uni_map"]),
-    "profile_rerun": ([], []),  # the profile again with today's code: the reference the later levers meet  # the same with univ's map for uni_examples (Goal-SAR's choice)
+    "profile_rerun": ([], []),  # the profile again with today's code: the reference the later levers meet
     # Capacity, against "profile": 1.5× the widths (2.25× the multiply-adds), and three supervised output maps.
     "wide_1.5": (["goal.widths=[12, 24, 24, 48]"], []),
     "supervised_3": (["goal.supervised_steps=3"], []),

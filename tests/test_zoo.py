@@ -19,6 +19,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError
+from fftool.reporting.summaries import zoo_rows
 from tests.test_maps import make_scene
 from tests.test_reproduce import TINY_PIPELINE
 
@@ -255,6 +256,43 @@ def test_rekey_moves_a_model_recorded_with_a_retired_option_only_at_the_behaviou
     else:
         with pytest.raises(FftoolError, match="trained with other parameters \\(old_option\\)"):
             zoo.rekey("tiny")
+
+
+def test_models_validate_shows_goal_variants_under_the_fair_protocol(tiny: dict[str, Path]) -> None:
+    """`models list` labels a true-goal-trained dr's numbers "true goals" until `models validate` scores it the
+    way predictions are made (sample k decodes goal k of the shipped goal U-Net); then it shows those, "fair"."""
+    source = tiny["tmp"] / "store"
+    shutil.copytree(tiny["trained"], source, ignore=shutil.ignore_patterns(".locks"))
+    zoo.pack(ArtifactStore(source), "tiny", ["zara1"])
+    assert "(true goals)" in _cli("models", "list", "--profile", "tiny")
+    with pytest.raises(FftoolError, match="fftool sample-goals --benchmarks zara1"):
+        zoo.validate(ArtifactStore(source), "tiny", ["zara1"])
+    cfg = load_config(tiny["pipelines"] / "tiny.toml")
+    goals = pipeline.run(cfg, ArtifactStore(source), ["goals"], benchmark="zara1")["goals"]
+    out = _cli("models", "validate", "--profile", "tiny", "--benchmarks", "zara1", "--root", source)
+    assert "scored 1 model(s) under the fair protocol: tiny/zara1/dr" in out
+    dr = next(m for m in zoo.shipped("tiny") if m.name == "tiny/zara1/dr")
+    scored = dr.artifact.manifest.stats["fair_validation"]
+    unet = next(m for m in zoo.shipped("tiny") if m.kind == "goal")
+    assert scored["goal_unet"] == unet.artifact.fingerprint and scored["k"] == 20
+    true_goals = summaries_best(dr)
+    assert (scored["min_ade_m"], scored["min_fde_m"]) != true_goals  # another protocol, another number
+    rows = {row["name"]: row for row in zoo_rows(zoo.shipped("tiny"))}
+    assert rows["tiny/zara1/dr"]["validation (best epoch)"] == (
+        f"minADE/FDE {scored['min_ade_m']:.3f}/{scored['min_fde_m']:.3f} (fair)"
+    )
+    assert "(fair)" in _cli("models", "list", "--profile", "tiny")
+    assert not zoo.orphans(zoo.shipped("tiny"))  # the manifest's stats changed, never its fingerprint
+    assert goals.id in {a.id for a in ArtifactStore(source).list("goals")}
+
+
+def summaries_best(model: zoo.Shipped) -> tuple[float, float]:
+    stats = model.artifact.manifest.stats
+    row = next(r for r in stats["log"] if r["epoch"] == stats["best_epoch"])
+    return (
+        next(v for k, v in row.items() if k.startswith("val_min_ade")),
+        next(v for k, v in row.items() if k.startswith("val_min_fde")),
+    )
 
 
 def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_made(tiny: dict[str, Path]) -> None:

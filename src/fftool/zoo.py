@@ -326,6 +326,47 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     return packed
 
 
+def validate(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
+    """Score every shipped model that reads a goal (its CVAE, and its DLow sampler) under the fair protocol on
+    its validation windows, with the goals the profile's shipped goal U-Net draws (`learning/fair_validation`),
+    and record the numbers in its manifest's stats (`fair_validation`); the names scored. `source` holds the
+    windows, forces and goals artifacts the profile builds (`fftool reproduce` or `fftool sample-goals`)."""
+    import torch
+
+    from fftool.learning.fair_validation import fair_validation
+
+    cfg, zoo, done = profile_config(profile), store(profile, root), []
+    for benchmark in benchmarks:
+        models = [m for m in shipped(profile, [benchmark], root) if m.variant is not None and reads_goal(m.variant)]
+        if not models:
+            continue
+        planned_goals = chain(cfg, "goals", None, benchmark)["goals"]
+        goals = source.lookup("goals", planned_goals.fingerprint)
+        if goals is None:
+            raise FftoolError(
+                f"{source.root} has no goals of {benchmark} for pipelines/{profile}.toml; draw them first "
+                f"(`fftool sample-goals --benchmarks {benchmark} -c pipelines/{profile}.toml`)"
+            )
+        cvaes = {m.variant: m for m in models if m.kind == "cvae"}
+        for model in models:
+            check(model, zoo)
+            cvae = cvaes[model.variant].artifact if model.kind == "dlow" else model.artifact
+            dlow = model.artifact if model.kind == "dlow" else None
+            found = fair_validation(source, goals, cvae, dlow, torch.device("cpu"))
+            manifest = model.artifact.manifest
+            zoo.replace_manifest(model.artifact, replace(manifest, stats=manifest.stats | {"fair_validation": found}))
+            done.append(model.name)
+    write_index(zoo)
+    return done
+
+
+def fair_numbers(model: Shipped, goal_unets: Iterable[Shipped]) -> dict[str, Any] | None:
+    """The model's recorded fair validation, if it was scored with the goals of the goal U-Net shipped beside it."""
+    found = model.artifact.manifest.stats.get("fair_validation")
+    current = {m.artifact.fingerprint for m in goal_unets if m.kind == "goal" and m.benchmark == model.benchmark}
+    return found if found and found.get("goal_unet") in current else None
+
+
 # Options removed from the code, with the one behaviour that stayed: a model recorded with that value was trained
 # as today's code trains; one recorded with another value was not, and is refused. (DLow's fixed diversity
 # weight, scale and schedule were recorded at their defaults and read only with per_benchmark = "fixed".)
@@ -385,7 +426,8 @@ def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | No
     `rekeyed_from` is added to its stats; the names re-keyed."""
     cfg = profile_config(profile)
     zoo = store(profile, root)
-    moved = []
+    moved: list[str] = []
+    renamed: dict[str, str] = {}  # old fingerprint -> new, of the models re-keyed
     for model in shipped(profile, benchmarks, root):
         builds = chain(cfg, model.kind, model.variant, model.benchmark)
         item, manifest = builds[model.kind], model.artifact.manifest
@@ -417,5 +459,14 @@ def rekey(profile: str, benchmarks: Iterable[str] | None = None, root: Path | No
         zoo.adopt(model.artifact, new)
         zoo.remove(model.artifact)
         moved.append(model.name)
+        renamed[manifest.fingerprint] = item.fingerprint
+    write_index(zoo)
+    for model in shipped(profile, benchmarks, root):  # fair numbers scored with a goal U-Net re-keyed above
+        found = model.artifact.manifest.stats.get("fair_validation")
+        if found and found.get("goal_unet") in renamed:
+            stats = model.artifact.manifest.stats | {
+                "fair_validation": found | {"goal_unet": renamed[found["goal_unet"]]}
+            }
+            zoo.replace_manifest(model.artifact, replace(model.artifact.manifest, stats=stats))
     write_index(zoo)
     return moved

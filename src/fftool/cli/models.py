@@ -89,6 +89,27 @@ def models_pack(
     log(f"packed {len(packed)} model(s) into models/{profile}: {', '.join(packed)}")
 
 
+@models_app.command(
+    "validate",
+    epilog="Example: fftool sample-goals --benchmarks zara1 -c pipelines/cpu.toml && "
+    "fftool models validate --benchmarks zara1",
+)
+@boundary
+def models_validate(
+    benchmarks: Annotated[str, typer.Option("--benchmarks", callback=check_benchmarks, help="Benchmarks to score.")],
+    profile: ProfileOption = "cpu",
+    root: RootOption = None,
+) -> None:
+    """Score the shipped goal variants (and their DLow samplers) under the fair protocol on their validation
+    windows, sample k decoding the shipped goal U-Net's goal k, and record it for `fftool models list`. Reads
+    the windows, forces and goals artifacts of the profile from the artifact store."""
+    from fftool import zoo
+    from fftool.ui import log
+
+    scored = zoo.validate(open_store(root), profile, benchmarks.split(","))
+    log(f"scored {len(scored)} model(s) under the fair protocol{': ' + ', '.join(scored) if scored else ''}")
+
+
 @models_app.command("rekey", epilog="Example: fftool models rekey --profile cpu")
 @boundary
 def models_rekey(profile: ProfileOption = "cpu") -> None:

@@ -325,9 +325,12 @@ def _best_row(manifest: Any) -> dict[str, Any]:
 
 
 def zoo_rows(models: list[Any]) -> list[dict[str, str]]:
-    """One row per shipped model: name, kind, id, its best epoch's validation numbers (for goal-reading models
-    labelled "fair" where they were chosen under the fair protocol, "true goals" where each window's true end
-    point was their goal: not what a user gets), best epoch / epochs, size."""
+    """One row per shipped model: name, kind, id, its validation numbers, best epoch / epochs, size. A model
+    that reads a goal shows them under the fair protocol (sample k decodes the goal module's goal k), labelled
+    "fair": chosen that way in training, or scored that way afterwards (`fftool models validate`); "true goals"
+    labels numbers where each window's true end point was the goal, which no user has."""
+    from fftool.zoo import fair_numbers
+
     rows = []
     for model in models:
         manifest = model.artifact.manifest
@@ -336,6 +339,9 @@ def zoo_rows(models: list[Any]) -> list[dict[str, str]]:
         prefix = "val_fair_min_" if fair else "val_min_"
         ade = next((v for k, v in row.items() if k.startswith(f"{prefix}ade")), None)
         fde = next((v for k, v in row.items() if k.startswith(f"{prefix}fde")), None)
+        scored = fair_numbers(model, models) if model.variant is not None and reads_goal(model.variant) else None
+        if scored is not None:  # with the goal U-Net shipped beside it: preferred to the training's own
+            ade, fde, fair = scored["min_ade_m"], scored["min_fde_m"], True
         if ade is not None and fde is not None:
             shown = f"minADE/FDE {ade:.3f}/{fde:.3f}"
             if model.variant is not None and reads_goal(model.variant):
@@ -364,8 +370,9 @@ def zoo_caption(models: list[Any]) -> str:
         return "no shipped models"
     return (
         f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint; "
-        "(true goals): validated with the true end point as the goal, which no prediction has; (fair): "
-        "validated with the goal module's goals, sample k with goal k"
+        "(fair): validated with the goal module's goals, sample k with goal k, as predictions are made; "
+        "(true goals): validated with the true end point as the goal, which no prediction has "
+        "(`fftool models validate` scores them under the fair protocol)"
     )
 
 

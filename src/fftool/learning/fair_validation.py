@@ -1,0 +1,69 @@
+"""A trained goal variant's validation numbers under the fair protocol, whatever it was trained and chosen with.
+
+A CVAE trained with true goals is chosen by its validation minADE with true goals (0.04–0.06 m minFDE for goal
+and re: no prediction has them). This scores it, or the DLow sampler over it, the way users meet it: sample k
+decodes the goal module's goal k, on the validation windows its training validated on. `fftool models
+validate` records the result in each shipped model's manifest; `benchmarks/fair_validation.py` prints it for
+any trained CVAE.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from fftool.artifacts.store import Artifact, ArtifactStore
+from fftool.errors import FftoolError
+from fftool.learning.batches import load_scene_set
+from fftool.learning.cvae_model import load_model, val_windows
+from fftool.learning.dlow_model import load_sampler
+from fftool.learning.features import TRAINING_READS
+from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
+from fftool.learning.training import validation_subset
+
+
+def _upstream(store: ArtifactStore, cvae: Artifact, kind: str) -> Artifact | None:
+    source = cvae.manifest.sources.get(kind)
+    if source is None:
+        return None
+    found = store.lookup(kind, source)
+    if found is None:
+        raise FftoolError(
+            f"{store.root} has no {kind} artifact {source[:12]}… that {cvae.id} trained on; build it first"
+        )
+    return found
+
+
+def fair_validation(
+    store: ArtifactStore, goals: Artifact, cvae: Artifact, dlow: Artifact | None, device: torch.device
+) -> dict[str, Any]:
+    """minADE / minFDE@K (metres) of `cvae` (through `dlow` when given) on its validation windows, sample k
+    decoding goal k of the goals artifact `goals`; with the number of windows and the goal U-Net they came from.
+    The windows are those the model's own training validated on (the CVAE's or the sampler's fixed subset)."""
+    trained = load_model(cvae, device)
+    cfg, benchmark = trained.config, str(cvae.manifest.stats["benchmark"])
+    windows = _upstream(store, cvae, "windows")
+    assert windows is not None, "every CVAE trains on a windows artifact"
+    val = load_scene_set(windows, _upstream(store, cvae, "forces"), benchmark, "val", reads=TRAINING_READS[cfg.variant])
+    sampled = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
+    if dlow is None:
+        subset, seed, sampler = val_windows(val, cfg), cfg.seed, None
+    else:
+        params = dlow.manifest.params
+        seed = int(params["seed"])
+        subset, sampler = (
+            validation_subset(val.windows, int(params["val_max_windows"]), seed),
+            load_sampler(dlow, device),
+        )
+    ade, fde = fair_min_ade_fde(
+        trained, val, subset, sampled, int(windows.manifest.stats["obs_len"]), cfg.k, seed, sampler=sampler
+    )
+    return {
+        "min_ade_m": round(ade, 6),
+        "min_fde_m": round(fde, 6),
+        "k": cfg.k,
+        "windows": len(subset),
+        "goal_unet": goals.manifest.sources["goal"],
+    }
