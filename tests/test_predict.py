@@ -342,3 +342,60 @@ def test_generated_api_input_gives_finite_futures_or_one_clear_error(tiny_model:
         assert np.isfinite(futures[np.broadcast_to(mask[:, None, :, None, None], futures.shape)]).all()
 
     check()
+
+
+def test_generated_track_files_and_options_give_a_forecast_or_one_error_line(
+    tiny_model: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    """`fftool predict`'s door: Hypothesis writes track files (odd numbers, text, missing or extra columns,
+    duplicated rows, a byte-order mark, thousands of metres) and picks --k, --at and --seed. Every run ends in a
+    Parquet of finite futures with exit 0, or one `Error:` line with exit 1 (data) or 2 (usage) and no output
+    file; never a traceback."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from tests.test_track_files import FUZZ_EXAMPLES
+
+    root, model_id = tiny_model
+    folder = tmp_path_factory.mktemp("predict_door")
+    number = st.one_of(
+        st.floats(-40, 40, allow_nan=False).map(lambda v: f"{v:.3f}"),
+        st.sampled_from(["nan", "inf", "-inf", "1e30", "1e7", "", "x", "0", "-0", "1,5", "  2.0 "]),
+    )
+    row = st.tuples(
+        st.one_of(st.integers(0, 12).map(lambda t: f"{t * 0.4:.1f}"), number),
+        st.one_of(st.integers(1, 3).map(str), st.sampled_from(["a", "99999999999999999999999", "-1", "1.5"])),
+        number,
+        number,
+    )
+    steady = [(f"{t * 0.4:.1f}", str(agent), f"{t * 0.5:.2f}", f"{agent:.1f}") for agent in (1, 2) for t in range(10)]
+
+    @settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(
+        rows=st.one_of(st.lists(row, max_size=30), st.lists(row, max_size=6).map(lambda extra: steady + extra)),
+        header=st.sampled_from(["time,agent_id,x,y", "\ufefftime,agent_id,x,y", "time,agent,x", "t;id;x;y", ""]),
+        k=st.sampled_from(["1", "5", "0", "-3", "2.5", "100000", "abc"]),
+        at=st.sampled_from([None, "last", "all", "3.6", "7.6,100", "1e300", "nan", "-1"]),
+        seed=st.sampled_from([None, "0", "7", "-1", "1e3", str(2**70)]),
+    )
+    def check(rows: list[tuple[str, ...]], header: str, k: str, at: str | None, seed: str | None) -> None:
+        tracks, out = folder / "tracks.csv", folder / "futures.parquet"
+        tracks.write_text("\n".join([header, *(",".join(r) for r in rows)]) + "\n", encoding="utf-8")
+        out.unlink(missing_ok=True)
+        args = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--k", k, "--out", str(out)]
+        args += ["--at", at] if at is not None else []
+        args += ["--seed", seed] if seed is not None else []
+        result = CliRunner().invoke(app, args)
+        if result.exit_code == 0:
+            futures = pd.read_parquet(out)
+            assert len(futures) and np.isfinite(futures[["x", "y"]].to_numpy()).all()
+            return
+        assert result.exit_code in (1, 2), result.output
+        assert not isinstance(result.exception, Exception) or isinstance(result.exception, SystemExit), result.output
+        lines = [line for line in result.output.strip().splitlines() if line.strip()]
+        assert lines and lines[0].startswith("Error:") or "Usage:" in result.output, result.output
+        if result.exit_code == 1:
+            assert len(lines) == 1, result.output
+        assert not out.exists()
+
+    check()

@@ -384,3 +384,82 @@ def test_an_empty_or_missing_models_folder_is_named(tiny: dict[str, Path], monke
         monkeypatch.setenv(zoo.ENV_MODELS, str(folder))
         result = CliRunner().invoke(app, ["models", "list"])
         assert result.exit_code == 2 and f"no shipped models in {folder}" in " ".join(result.output.split())
+
+
+def test_generated_damage_to_a_zoo_is_refused_before_anything_is_installed(
+    trained: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`fftool models install`'s door: Hypothesis damages a packed zoo (bytes flipped, files truncated, removed,
+    added or swapped, manifest fields and index entries edited, links planted) and installs it into an empty
+    store. Every run installs intact models (each installed file as packed), or ends in one `Error:` line,
+    exit 1, with nothing installed; never a traceback."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from tests.test_track_files import FUZZ_EXAMPLES
+
+    base = tmp_path_factory.mktemp("zoo_door")
+    monkeypatch.setattr(zoo, "pipelines_root", lambda: trained[0])
+    monkeypatch.setenv(zoo.ENV_MODELS, str(base / "pristine"))
+    zoo.pack(ArtifactStore(trained[1]), "tiny", ["zara1"])
+    pristine = base / "pristine" / "tiny"
+    files = sorted(p.relative_to(pristine) for p in pristine.rglob("*") if p.is_file())
+    packed = {f: (pristine / f).read_bytes() for f in files}
+
+    def damage(folder: Path, how: str, which: int, where: float, value: object) -> None:
+        target = folder / files[which % len(files)]
+        data = target.read_bytes()
+        at = min(int(where * len(data)), max(len(data) - 1, 0))
+        if how == "flip" and data:
+            target.write_bytes(data[:at] + bytes([data[at] ^ 0x40]) + data[at + 1 :])
+        elif how == "truncate":
+            target.write_bytes(data[:at])
+        elif how == "remove":
+            target.unlink()
+        elif how == "add":
+            (target.parent / "extra.bin").write_bytes(b"planted")
+        elif how == "swap":
+            other = folder / files[(which + 1) % len(files)]
+            target.write_bytes(other.read_bytes())
+        elif how == "link":
+            target.unlink()
+            target.symlink_to(base / "elsewhere")
+        elif how == "json" and target.suffix == ".json":
+            record = json.loads(data)
+            section = next((v for v in record.values() if isinstance(v, dict) and v), record)
+            section[sorted(section)[which % len(section)]] = value
+            target.write_text(json.dumps(record))
+
+    @settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(
+        how=st.sampled_from(["flip", "truncate", "remove", "add", "swap", "link", "json"]),
+        which=st.integers(0, 10_000),
+        where=st.floats(0, 1),
+        value=st.one_of(st.none(), st.integers(-5, 5), st.text(max_size=5), st.just("dr"), st.just({})),
+    )
+    def check(how: str, which: int, where: float, value: object) -> None:
+        folder, target = base / "models", base / "target"
+        shutil.rmtree(folder, ignore_errors=True)
+        shutil.rmtree(target, ignore_errors=True)
+        shutil.copytree(pristine, folder / "tiny", symlinks=True)
+        damage(folder / "tiny", how, which, where, value)
+        monkeypatch.setenv(zoo.ENV_MODELS, str(folder))
+        result = CliRunner().invoke(app, ["models", "install", "--profile", "tiny", "--root", str(target)])
+        if result.exit_code == 0:
+            installed = [p for p in target.rglob("*") if p.is_file() and ".locks" not in p.parts]
+            for path in installed:
+                if path.name == "manifest.json":
+                    continue  # the store may record where and when it installed
+                kind_id = path.relative_to(target).parts[:2]
+                assert any(
+                    f.parts[:2] == kind_id and f.name == path.name and packed[f] == path.read_bytes() for f in files
+                ), path
+            return
+        assert result.exit_code == 1 and not isinstance(result.exception, Exception) or isinstance(
+            result.exception, SystemExit
+        ), result.output
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("Error:"), result.output
+        assert not any(p.is_file() for kind in zoo.KINDS for p in (target / kind).rglob("*")), "installed in part"
+
+    check()
