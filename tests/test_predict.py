@@ -391,9 +391,9 @@ def test_generated_track_files_and_options_give_a_forecast_or_one_error_line(
             assert len(futures) and np.isfinite(futures[["x", "y"]].to_numpy()).all()
             return
         assert result.exit_code in (1, 2), result.output
-        assert not isinstance(result.exception, Exception) or isinstance(result.exception, SystemExit), result.output
+        assert result.exception is None or isinstance(result.exception, SystemExit), result.output
         lines = [line for line in result.output.strip().splitlines() if line.strip()]
-        assert lines and lines[0].startswith("Error:") or "Usage:" in result.output, result.output
+        assert (lines and lines[0].startswith("Error:")) or "Usage:" in result.output, result.output
         if result.exit_code == 1:
             assert len(lines) == 1, result.output
         assert not out.exists()

@@ -455,9 +455,8 @@ def test_generated_damage_to_a_zoo_is_refused_before_anything_is_installed(
                     f.parts[:2] == kind_id and f.name == path.name and packed[f] == path.read_bytes() for f in files
                 ), path
             return
-        assert result.exit_code == 1 and not isinstance(result.exception, Exception) or isinstance(
-            result.exception, SystemExit
-        ), result.output
+        assert result.exit_code == 1, result.output
+        assert result.exception is None or isinstance(result.exception, SystemExit), result.output
         lines = result.output.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("Error:"), result.output
         assert not any(p.is_file() for kind in zoo.KINDS for p in (target / kind).rglob("*")), "installed in part"
