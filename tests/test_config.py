@@ -71,6 +71,7 @@ def test_ranges_are_checked_with_the_key_and_the_bound(override: str, expected: 
         (["cvae.d_model=20", "cvae.n_heads=8"], "cvae.n_heads: expected a divisor of d_model = 20 (got 8)"),
         (["goal.crop_cells=20"], "goal.crop_cells: expected a multiple of 16 (2 ** (len(widths) - 1)) (got 20)"),
         (["goal.crop_cells=16", "goal.widths=[4, 8, 8]", "goal.heatmap_sigma_cells=7"], "goal.heatmap_sigma_cells: "),
+        (["report.seeds=[0, 0]"], "report.seeds: expected distinct seeds (got [0, 0])"),
     ],
 )
 def test_cross_field_checks_name_the_key_and_what_was_expected(overrides: list[str], expected: str) -> None:

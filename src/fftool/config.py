@@ -379,6 +379,13 @@ class ReportConfig(_Section):
 
     confidence: float = Field(0.95, gt=0, lt=1)
 
+    @model_validator(mode="after")
+    def _distinct_seeds(self) -> ReportConfig:
+        """A seed named twice would train and count the same cells twice (as `--seeds 0,0` is refused)."""
+        if len(set(self.seeds)) != len(self.seeds):
+            raise _expected("seeds", "distinct seeds", list(self.seeds))
+        return self
+
 
 # The keys every variant shares: which variant a section trains, which predictors draw through DLow, and the
 # seeds (grid parameters, set in every seeded section at once by `seeded_config`).
