@@ -62,6 +62,7 @@ ORDER = [
     "fftool train-dlow",  # over the dr CVAE train-cvae built
     "fftool evaluate",
     "fftool models pack",  # trains the checkout's tiny cpu profile for zara1, then ships it in models/
+    "fftool models validate",  # scores the dr that pack shipped, with the goals sample-goals draws
     "fftool models",  # lists what pack shipped
     "fftool models install",
     "fftool models list",
