@@ -5,7 +5,9 @@ computed here for any CVAE (for instance one trained with true goals) on the sam
 model's own fixed subset) and the same goals, so the two can be compared (`fftool.learning.fair_validation`,
 which `fftool models validate` records for the shipped models). Reads no test window.
 
-    python benchmarks/fair_validation.py --root R --goals goals/<id> cvae/<id> [cvae/<id> ...]
+    python benchmarks/fair_validation.py --root R --goals goals/<id> cvae/<id> [dlow/<id> ...]
+
+A DLow sampler (dlow/<id>) is scored over the CVAE it was trained on, on the sampler's own validation subset.
 """
 
 from __future__ import annotations
@@ -23,19 +25,23 @@ from fftool.learning.fair_validation import fair_validation
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("models", nargs="+", help="CVAE artifact ids (cvae/<id>)")
+    parser.add_argument("models", nargs="+", help="CVAE or DLow artifact ids (cvae/<id>, dlow/<id>)")
     parser.add_argument("--goals", required=True, help="the goals artifact (goals/<id>) of the same benchmark")
     parser.add_argument("--root", type=Path, default=Path("artifacts"))
     args = parser.parse_args()
     writer = csv.writer(sys.stdout)
-    writer.writerow(["cvae", "variant", "benchmark", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
+    writer.writerow(["model", "variant", "benchmark", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
     store, goals = find_artifact(args.goals, "goals", args.root)
     for ref in args.models:
-        _, cvae = find_artifact(ref, "cvae", args.root)
-        found = fair_validation(store, goals, cvae, None, torch.device("cpu"))
+        dlow = find_artifact(ref, "dlow", args.root)[1] if str(ref).startswith("dlow/") else None
+        found_cvae = store.lookup("cvae", dlow.manifest.built_from()["cvae"]) if dlow else None
+        cvae = found_cvae if dlow else find_artifact(ref, "cvae", args.root)[1]
+        if cvae is None:
+            sys.exit(f"{ref}: the CVAE it samples from is not in {args.root}")
+        found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"))
         stats = cvae.manifest.stats
         numbers = [f"{found['min_ade_m']:.4f}", f"{found['min_fde_m']:.4f}"]
-        writer.writerow([cvae.id, stats["variant"], stats["benchmark"], found["windows"], *numbers])
+        writer.writerow([(dlow or cvae).id, stats["variant"], stats["benchmark"], found["windows"], *numbers])
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from fftool import zoo
 from fftool.cli import app
 
 from .conftest import make_raw_tree, snapshot
@@ -146,4 +147,20 @@ def test_version() -> None:
     from fftool import __version__
 
     result = CliRunner().invoke(app, ["--version"])
-    assert result.exit_code == 0 and result.output.strip() == f"fftool {__version__}"
+    assert result.exit_code == 0 and result.output.startswith(f"fftool {__version__}; models: ")
+    assert str(zoo.models_root()) in result.output  # where the shipped models come from
+
+
+def test_a_profile_is_a_file_or_a_shipped_profiles_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`fftool reproduce cpu` runs the profile the shipped models came with, from any folder (an installed
+    fftool has no pipelines/ beside the user); a name that is neither is one usage error listing the names."""
+    from fftool.cli.app import profile_file
+
+    monkeypatch.chdir(tmp_path)
+    assert profile_file(Path("quick")) == zoo.pipelines_root() / "quick.toml"
+    (tmp_path / "quick").write_text("")  # a file of that name is the user's, and wins
+    assert profile_file(Path("quick")) == Path("quick")
+    result = CliRunner().invoke(app, ["reproduce", "nosuch"])
+    assert result.exit_code == 2 and "nosuch: no such file, nor a shipped profile's name (cpu, paper, quick)" in (
+        result.output
+    )

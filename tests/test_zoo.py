@@ -283,6 +283,8 @@ def test_models_validate_shows_goal_variants_under_the_fair_protocol(tiny: dict[
     )
     assert "(fair)" in _cli("models", "list", "--profile", "tiny")
     assert not zoo.orphans(zoo.shipped("tiny"))  # the manifest's stats changed, never its fingerprint
+    # each benchmark reads the whole zoo, which must stay whole after the one before was scored
+    assert zoo.validate(ArtifactStore(source), "tiny", ["zara1", "zara1"]) == ["tiny/zara1/dr"] * 2
     assert goals.id in {a.id for a in ArtifactStore(source).list("goals")}
 
 
@@ -462,3 +464,21 @@ def test_generated_damage_to_a_zoo_is_refused_before_anything_is_installed(
         assert not any(p.is_file() for kind in zoo.KINDS for p in (target / kind).rglob("*")), "installed in part"
 
     check()
+
+
+def test_models_are_listed_installed_and_loaded_without_the_benchmark_data(tiny: dict[str, Path]) -> None:
+    """Where the profile's data folders are not there (an installed fftool, a planner's machine), a model is
+    checked against the raw files' hashes its lineage recorded: still current, still installable and loadable,
+    and still orphaned by a change of the profile that reaches its training inputs."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    profile = tiny["pipelines"] / "tiny.toml"
+    text = profile.read_text()
+    cfg = load_config(profile)
+    away = tiny["tmp"] / "nowhere"
+    profile.write_text(text.replace(cfg.data.raw_dir, str(away / "raw")).replace(cfg.data.scenes_dir, str(away)))
+    listing = _cli("models", "list", "--profile", "tiny")
+    assert "tiny/zara1/dr" in listing and not zoo.orphans(zoo.shipped("tiny"))
+    assert "4 model(s) installed" in _cli("models", "install", "--profile", "tiny", "--root", tiny["tmp"] / "fresh")
+    assert api.load("tiny/zara1/dr").variant == "dr"
+    profile.write_text(profile.read_text() + "\n[windows]\nobs_len = 10\n")
+    assert set(zoo.orphans(zoo.shipped("tiny"))) == {m.name for m in zoo.shipped("tiny")}

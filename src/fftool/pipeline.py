@@ -81,9 +81,16 @@ def _stage(name: str) -> Stage:
     return STAGES[name]
 
 
-def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None = None) -> list[Resolved]:
+def resolve(
+    cfg: PipelineConfig,
+    targets: Iterable[str],
+    benchmark: str | None = None,
+    recorded: Mapping[str, Mapping[str, str]] | None = None,
+) -> list[Resolved]:
     """The builds `targets` need under `cfg`, upstream first, each once, each fingerprinted from its
-    declaration: its parameters, and its upstream fingerprints (or views of them) and raw-file hashes."""
+    declaration: its parameters, and its upstream fingerprints (or views of them) and raw-file hashes.
+    recorded: stage -> raw-file hashes to use instead of hashing that stage's files (a shipped model's
+    lineage, where the benchmark data is not at hand)."""
     resolved: dict[str, Resolved] = {}
 
     def visit(name: str) -> None:
@@ -102,7 +109,10 @@ def resolve(cfg: PipelineConfig, targets: Iterable[str], benchmark: str | None =
                 raise UsageError(f"stage {stage.name!r} got {given}; the data offers {', '.join(offered)}")
             params["benchmark"] = benchmark
         ups = {up: resolved[up] for up in reads.artifacts}
-        inputs = dict(_input_key(ups[up], parts) for up, parts in reads.artifacts.items()) | dict(reads.raw_files)
+        raw = (recorded or {}).get(name)
+        inputs = dict(_input_key(ups[up], parts) for up, parts in reads.artifacts.items()) | dict(
+            reads.raw_files() if raw is None else raw
+        )
         allowed = declared | allowed_keys(cfg, reads.locations)
         for up, parts in reads.artifacts.items():
             if parts is not None and ups[up].stage.section:

@@ -10,6 +10,8 @@ them built and trains nothing. Names read `<profile>/<benchmark>/<variant>` (e.g
 
 from __future__ import annotations
 
+import importlib.metadata
+import importlib.util
 import json
 import os
 import re
@@ -35,8 +37,27 @@ NAME = re.compile(r"(?P<profile>[a-z0-9_]+)/(?P<benchmark>[A-Za-z0-9_.-]+)/(?P<v
 
 
 def models_root() -> Path:
-    """`$FFTOOL_MODELS`, or the `models/` folder of this source checkout."""
-    return Path(os.environ.get(ENV_MODELS, Path(__file__).resolve().parents[2] / "models"))
+    """`$FFTOOL_MODELS`; else the `models/` folder of the source checkout fftool runs from; else that of the
+    installed `fftool-models` wheel (tools/build_wheels.py)."""
+    if ENV_MODELS in os.environ:
+        return Path(os.environ[ENV_MODELS])
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file() or importlib.util.find_spec("fftool_models") is None:
+        return checkout / "models"
+    from fftool_models import MODELS
+
+    return MODELS
+
+
+def models_version() -> str:
+    """Which models fftool uses, for `fftool --version`: the installed wheel's version, or the folder."""
+    root = models_root()
+    if ENV_MODELS not in os.environ and importlib.util.find_spec("fftool_models") is not None:
+        from fftool_models import MODELS
+
+        if root == MODELS:
+            return f"fftool-models {importlib.metadata.version('fftool-models')} ({root})"
+    return f"{root}" + ("" if root.is_dir() else " (not there: no shipped models)")
 
 
 def pipelines_root() -> Path:
@@ -82,20 +103,46 @@ class Shipped:
 
     def expected_fingerprint(self, cfg: PipelineConfig | None = None) -> str:
         """The fingerprint today's code computes for this stage, benchmark and variant under the profile."""
-        return planned(cfg or self.profile_config(), self.kind, self.variant, self.benchmark).fingerprint
+        cfg = cfg or self.profile_config()
+        return planned(cfg, self.kind, self.variant, self.benchmark, self.recorded_data(cfg)).fingerprint
+
+    def recorded_data(self, cfg: PipelineConfig) -> dict[str, dict[str, str]]:
+        """The raw-file hashes its lineage recorded, for the stages whose data folder is not here: a user without
+        the benchmark data (an installed fftool) can still tell a current model from one the code no longer
+        computes. Where the folder is here, its files are hashed, so a model of other data is never current."""
+        folders = {"tracks": cfg.data.raw_dir, "maps": cfg.data.scenes_dir}
+        recorded = self.artifact.manifest.stats.get("lineage", {})
+        return {
+            stage: dict(recorded[stage]["raw"])
+            for stage, folder in folders.items()
+            if stage in recorded and not cfg.data.dataset and not Path(folder).is_dir()
+        }
 
 
-def chain(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> dict[str, Resolved]:
-    """Every build `reproduce` plans up to one trained stage (of a variant's CVAE, for cvae and dlow), by stage."""
+def chain(
+    cfg: PipelineConfig,
+    kind: str,
+    variant: str | None,
+    benchmark: str,
+    recorded: dict[str, dict[str, str]] | None = None,
+) -> dict[str, Resolved]:
+    """Every build `reproduce` plans up to one trained stage (of a variant's CVAE, for cvae and dlow), by stage;
+    `recorded`: raw-file hashes standing in for data that is not here (`Shipped.recorded_data`)."""
     from fftool import pipeline
 
     chosen = cfg if variant is None else predictor_config(cfg, variant)
-    return {item.stage.name: item for item in pipeline.resolve(chosen, [kind], benchmark)}
+    return {item.stage.name: item for item in pipeline.resolve(chosen, [kind], benchmark, recorded)}
 
 
-def planned(cfg: PipelineConfig, kind: str, variant: str | None, benchmark: str) -> Resolved:
+def planned(
+    cfg: PipelineConfig,
+    kind: str,
+    variant: str | None,
+    benchmark: str,
+    recorded: dict[str, dict[str, str]] | None = None,
+) -> Resolved:
     """The build `reproduce` plans for one trained stage."""
-    return chain(cfg, kind, variant, benchmark)[kind]
+    return chain(cfg, kind, variant, benchmark, recorded)[kind]
 
 
 def profile_config(profile: str) -> PipelineConfig:
@@ -109,8 +156,8 @@ def store(profile: str, root: Path | None = None) -> ArtifactStore:
     folder = (root or models_root()) / profile
     if not folder.is_dir():
         raise UsageError(
-            f"no shipped models for profile {profile!r} (looked in {folder}; ${ENV_MODELS} names the models/ folder "
-            "of an fftool checkout when fftool is installed from elsewhere)"
+            f"no shipped models for profile {profile!r} (looked in {folder}); install the fftool-models wheel "
+            f"(docs/models.md), or name a models/ folder with ${ENV_MODELS}"
         )
     return ArtifactStore(folder)
 
@@ -355,8 +402,8 @@ def validate(source: ArtifactStore, profile: str, benchmarks: Iterable[str], roo
             found = fair_validation(source, goals, cvae, dlow, torch.device("cpu"))
             manifest = model.artifact.manifest
             zoo.replace_manifest(model.artifact, replace(manifest, stats=manifest.stats | {"fair_validation": found}))
+            write_index(zoo)  # the zoo stays whole between models: the next benchmark's `shipped` reads it all
             done.append(model.name)
-    write_index(zoo)
     return done
 
 

@@ -70,8 +70,9 @@ app = typer.Typer(
 def _print_version(asked: bool) -> None:
     if asked:
         from fftool import __version__
+        from fftool.zoo import models_version
 
-        typer.echo(f"fftool {__version__}")
+        typer.echo(f"fftool {__version__}; models: {models_version()}")
         raise typer.Exit()
 
 
@@ -79,7 +80,12 @@ def _print_version(asked: bool) -> None:
 def _main(
     version: Annotated[
         bool,
-        typer.Option("--version", help="Print fftool's version and exit.", callback=_print_version, is_eager=True),
+        typer.Option(
+            "--version",
+            help="Print fftool's version and where its shipped models come from, and exit.",
+            callback=_print_version,
+            is_eager=True,
+        ),
     ] = False,
 ) -> None:
     """ForceFormer pedestrian-trajectory prediction, reproducible: one command per pipeline stage.
@@ -94,9 +100,29 @@ RootOption = Annotated[
 ]
 
 
+def profile_file(value: Path | None) -> Path | None:
+    """A pipeline TOML file, or the name of a profile the shipped models came with (`cpu`: pipelines/cpu.toml
+    beside the models, in a checkout or the installed fftool-models wheel)."""
+    if value is None or value.is_file():
+        return value
+    from fftool.zoo import pipelines_root
+
+    shipped = pipelines_root() / f"{value}.toml"
+    if value.suffix == "" and value.parent == Path() and shipped.is_file():
+        return shipped
+    names = ", ".join(sorted(p.stem for p in pipelines_root().glob("*.toml"))) or "none here"
+    raise typer.BadParameter(f"{value}: no such file, nor a shipped profile's name ({names})")
+
+
 ConfigOption = Annotated[
     Path | None,
-    typer.Option("--config", "-c", exists=True, dir_okay=False, help="Pipeline TOML file (e.g. pipelines/quick.toml)."),
+    typer.Option(
+        "--config",
+        "-c",
+        dir_okay=False,
+        callback=profile_file,
+        help="Pipeline TOML file (e.g. pipelines/quick.toml), or a shipped profile's name (quick, cpu).",
+    ),
 ]
 
 

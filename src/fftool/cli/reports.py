@@ -24,6 +24,7 @@ from fftool.cli.app import (
     check_predictor,
     check_threshold,
     open_store,
+    profile_file,
 )
 
 SeedsOption = Annotated[
@@ -70,9 +71,10 @@ PipelineArgument = Annotated[
     Path | None,
     typer.Argument(
         metavar="PIPELINE",
-        exists=True,
         dir_okay=False,
-        help="A profile in pipelines/ (or -c). Default: the built-in defaults (the paper's configuration).",
+        callback=profile_file,
+        help="A profile's TOML file (pipelines/cpu.toml) or a shipped profile's name (cpu), or -c. Default: the "
+        "built-in defaults (the paper's configuration).",
         show_default=False,
     ),
 ]
@@ -108,11 +110,11 @@ def reproduce(
 
     if pipeline_file and config and pipeline_file.resolve() != config.resolve():
         raise UsageError(f"two pipelines given ({pipeline_file} and -c {config}); give one")
-    profile_file = pipeline_file or config
+    chosen = pipeline_file or config
     values = ({"evaluate.protocol": protocol} if protocol else {}) | ({"report.seeds": _seeds(seeds)} if seeds else {})
-    cfg = load_config(profile_file, set_, values)
+    cfg = load_config(chosen, set_, values)
     store = open_store(root)
-    profile = profile_file.stem if profile_file else "defaults"
+    profile = chosen.stem if chosen else "defaults"
     reports_dir = store.root / cfg.report.out_dir  # an absolute out_dir replaces the root
     out_dir = ablation.check_report_folder(out or reports_dir / profile, store.root, reports_dir)  # before any work
     prebuild = None

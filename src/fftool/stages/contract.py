@@ -63,14 +63,15 @@ class Reads:
     artifacts: upstream stage -> the parts of its artifact the build reads (None: all of it). Reading
         parts hashes only the upstream parameters those parts depend on (`Stage.parts`), and lets the
         build read those configuration keys too (they are in the fingerprint through that view).
-    raw_files: raw input name -> sha256 of its bytes (files enter by content, never by path).
+    raw_files: a function giving raw input name -> sha256 of its bytes (files enter by content, never by path);
+        called only when the files are needed, so a shipped model's recorded hashes can stand in for them.
     locations: configuration keys that say where the raw files lie: readable by the build, not hashed.
     command: the options of the stage's command that select this artifact (e.g. " --variant dr").
     """
 
     params: tuple[str, ...]
     artifacts: Mapping[str, tuple[str, ...] | None] = field(default_factory=dict)
-    raw_files: Mapping[str, str] = field(default_factory=dict)
+    raw_files: Callable[[], Mapping[str, str]] = dict
     locations: tuple[str, ...] = ()
     command: str = ""
 

@@ -278,7 +278,10 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The raster settings and the scene images and homographies by content (a dataset's, or ETH/UCY's)."""
     data = cfg.data
-    scenes = load_dataset(data.dataset).scene_hashes() if data.dataset else scene_input_hashes(Path(data.scenes_dir))
+
+    def scenes() -> dict[str, str]:
+        return load_dataset(data.dataset).scene_hashes() if data.dataset else scene_input_hashes(Path(data.scenes_dir))
+
     return Reads(params=("maps.*",), raw_files=scenes, locations=("data.scenes_dir", "data.dataset"))
 
 

@@ -185,7 +185,10 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The ingest settings and the raw files by content (a dataset TOML's description and files, or ETH/UCY's)."""
     data = cfg.data
-    raw = load_dataset(data.dataset).input_hashes() if data.dataset else raw_input_hashes(Path(data.raw_dir))
+
+    def raw() -> dict[str, str]:
+        return load_dataset(data.dataset).input_hashes() if data.dataset else raw_input_hashes(Path(data.raw_dir))
+
     return Reads(params=("ingest.*",), raw_files=raw, locations=("data.raw_dir", "data.dataset"))
 
 
