@@ -78,6 +78,22 @@ def test_the_online_predictor_gives_the_numbers_of_predict_at_each_time(
 
 
 @pytest.mark.data
+def test_each_update_gives_the_most_likely_future_of_predict(tiny: dict[str, object]) -> None:
+    """Beside the K samples, every update carries one most-likely future per agent: `predict --most-likely`'s."""
+    tracks = _zara1(40.0, 48.0)
+    online, last = OnlinePredictor(tiny["baseline"], root=tiny["root"], k=20, seed=4), None
+    for time_s, rows in tracks.groupby("time_s", sort=True):
+        result = online.update(float(time_s), dict(zip(rows["agent"], zip(rows["x"], rows["y"]))))
+        last = result if len(result.agents) else last
+    assert last is not None and last.most_likely.shape == (len(last.agents), 12, 2)
+    model = load(tiny["baseline"], root=tiny["root"])
+    table, _ = predict_tracks(model, tracks, at=[last.time_s], k=20, seed=4, most_likely=True)
+    table = table.sort_values(["agent", "step"], kind="stable")
+    assert table["agent"].unique().tolist() == last.agents.tolist()
+    assert np.array_equal(table[["x", "y"]].to_numpy().reshape(-1, 12, 2), last.most_likely)
+
+
+@pytest.mark.data
 def test_a_jittered_stream_with_dropped_frames_gives_predicts_numbers_on_what_it_saw(tiny: dict[str, object]) -> None:
     """10 Hz detections with ±20 ms jitter, one in ten dropped: each prediction equals `predict_tracks` on all the
     detections received so far (resampled the same way), although the predictor keeps only the last few seconds."""

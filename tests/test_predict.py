@@ -19,6 +19,7 @@ from fftool.config import load_config, predictor_config
 from fftool.dataset.trackfiles import read_tracks
 from fftool.errors import RawDataError
 from fftool.learning.batches import load_agent_windows
+from fftool.models.forceformer import Gaussian
 
 from .conftest import REAL_RAW, TINY_CVAE
 
@@ -107,6 +108,29 @@ def test_predict_writes_k_futures_per_agent_and_the_api_agrees(tiny_model: tuple
     assert futures.shape == (1, 5, 2, 12, 2)
     same, _ = predict_tracks(model, read_tracks(tracks), k=5)
     assert np.array_equal(same[["x", "y"]].to_numpy().reshape(2, 5, 12, 2), futures[0].transpose(1, 0, 2, 3))
+
+
+def test_the_most_likely_future_is_the_prior_means_decoding(
+    tiny_model: tuple[Path, str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`Model.most_likely` and `predict --most-likely` give one deterministic future per agent: what sampling
+    gives when every draw is the prior's mean (checked through the sampling path itself)."""
+    root, model_id = tiny_model
+    model, tracks = load(model_id, root=root), _walkers(tmp_path / "t.csv")
+    past = read_tracks(tracks)[["x", "y"]].to_numpy().reshape(1, 2, 10, 2)[:, :, -8:]
+    mask = np.ones((1, 2), bool)
+    path = model.most_likely(past, mask)
+    assert path.shape == (1, 2, 12, 2) and np.array_equal(path, model.most_likely(past, mask))
+    assert not np.allclose(model.predict(past, mask, k=1)[:, 0], path, atol=1e-4)  # a draw is not the centre
+    monkeypatch.setattr(Gaussian, "sample", lambda self, generator=None: self.mu)
+    assert np.allclose(model.predict(past, mask, k=1)[:, 0], path, atol=1e-5)
+    out = tmp_path / "path.parquet"
+    args = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--most-likely", "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    table = pd.read_parquet(out).sort_values(["agent", "step"])
+    assert len(table) == 2 * 12 and set(table["sample"]) == {0}
+    assert np.allclose(table[["x", "y"]].to_numpy().reshape(2, 12, 2), path[0], atol=1e-5)
 
 
 def test_tracks_at_another_rate_are_resampled_with_a_warning(tiny_model: tuple[Path, str], tmp_path: Path) -> None:

@@ -3,6 +3,7 @@
     from fftool.api import load
     model = load("cvae/3f9c2a")                      # an artifact id, its folder, or a shipped model: cpu/zara1/dr
     futures = model.predict(past, agent_mask, k=20)  # (B, A, 8, 2), (B, A) -> (B, K, A, 12, 2)
+    path = model.most_likely(past, agent_mask)       # one future per agent for a planner: (B, A, 12, 2)
 
 `predict_tracks` does the same for a table of tracks (time, agent, x, y), as `fftool predict` does.
 Both draw through the sampler `evaluate` uses (learning/sampling.py), so a window `evaluate` scored
@@ -16,6 +17,7 @@ import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -29,7 +31,7 @@ from fftool.dataset.steps import ObservedWindows, grid_steps, observed_windows, 
 from fftool.dataset.stream import DetectionBuffer
 from fftool.errors import FftoolError, InputError, UsageError
 from fftool.learning import devices, goal_model
-from fftool.learning.batches import SceneMaps
+from fftool.learning.batches import SceneBatch, SceneMaps
 from fftool.learning.cvae_model import Trained, load_model
 from fftool.learning.dlow_model import load_sampler
 from fftool.learning.observed import padded_batch, scene_set
@@ -103,17 +105,8 @@ class Model:
         variants, (B, A, 2) one goal per agent, or (B, A, K, 2) one per sample. The draws are fixed by `seed`.
         Input a model cannot take is an InputError naming the window, agent and step, before any work.
         """
-        past, mask = np.asarray(past, dtype=np.float64), np.asarray(agent_mask, dtype=bool)
-        if past.ndim != 4 or past.shape[2:] != (self.obs_len, 2) or mask.shape != past.shape[:2]:
-            raise UsageError(
-                f"expected past (B, A, {self.obs_len}, 2) and agent_mask (B, A), got {past.shape} and {mask.shape}"
-            )
-        check_request(past, mask, k, self.pred_len)
         check_seed(seed)
-        past = np.where(mask[:, :, None, None], past, 0.0)  # padding never reaches the model, NaN or not
-        if goals is not None:
-            check_goals(np.asarray(goals, dtype=np.float64), mask)
-        batch = padded_batch(past, mask, self.pred_len, self.trained.forces_config, self.trained.dt_s).to(self.device)
+        mask, batch = self._batch(past, agent_mask, k, goals)
         if not reads_goal(self.variant):
             predictor = self.predictor(k, seed)
             goals_k = predictor.goals(batch, np.zeros(mask.shape, np.int64))
@@ -126,6 +119,39 @@ class Model:
             goals_k = goals_t.transpose(1, 2) if per_sample else goals_t[:, None].expand(-1, k, -1, -1)
         with torch.no_grad():
             return predictor(batch, goals_k).cpu().numpy()
+
+    def _batch(
+        self, past: np.ndarray, agent_mask: np.ndarray, k: int, goals: np.ndarray | None
+    ) -> tuple[np.ndarray, SceneBatch]:
+        """The request checked before any work, as (agent_mask, the padded batch on the model's device)."""
+        past, mask = np.asarray(past, dtype=np.float64), np.asarray(agent_mask, dtype=bool)
+        if past.ndim != 4 or past.shape[2:] != (self.obs_len, 2) or mask.shape != past.shape[:2]:
+            raise UsageError(
+                f"expected past (B, A, {self.obs_len}, 2) and agent_mask (B, A), got {past.shape} and {mask.shape}"
+            )
+        check_request(past, mask, k, self.pred_len)
+        past = np.where(mask[:, :, None, None], past, 0.0)  # padding never reaches the model, NaN or not
+        if goals is not None:
+            check_goals(np.asarray(goals, dtype=np.float64), mask)
+        batch = padded_batch(past, mask, self.pred_len, self.trained.forces_config, self.trained.dt_s)
+        return mask, batch.to(self.device)
+
+    def most_likely(self, past: np.ndarray, agent_mask: np.ndarray, *, goals: np.ndarray | None = None) -> np.ndarray:
+        """One future per agent (B, A, pred_len, 2) in metres, for a planner that wants one: the decoder's path
+        from the centre of its prior (the mean code z = μ of p(z | past), not a draw), toward goals (B, A, 2)
+        for goal variants. Deterministic. The K samples of `predict` are equally likely draws: the model gives
+        them no weights, so the most-likely future is this decoding, not one of the K."""
+        mask, batch = self._batch(past, agent_mask, 1, goals)
+        if reads_goal(self.variant):
+            if goals is None or np.shape(goals) != (*mask.shape, 2):
+                raise UsageError(f"the {self.variant} variant steers toward goals: pass goals (B, A, 2)")
+            goal = torch.as_tensor(np.asarray(goals), dtype=torch.float32, device=self.device)
+        else:
+            goal = batch.xy[:, :, self.obs_len - 1]
+        with torch.no_grad():
+            return (
+                self.predictor(1 if self.sampler is None else self.sampler.k, 0).most_likely(batch, goal).cpu().numpy()
+            )
 
 
 # Coordinates beyond this many metres from the origin are no pedestrian scene: a unit or a sentinel value.
@@ -254,12 +280,14 @@ def predict_tracks(
     goals: Mapping[object, tuple[float, float]] | None = None,
     goal_sampler: GoalSampler | None = None,
     max_gap_s: float = 1.0,
+    most_likely: bool = False,
 ) -> tuple[pd.DataFrame, list[str]]:
     """K futures for every agent with all observed steps at the prediction time(s), and the warnings.
 
     tracks: rows (time_s, agent, x, y) as `dataset.trackfiles.read_tracks` gives. at: "last" (the file's
     last time), "all" (every time an agent has a full history) or times in seconds. goals: one (x, y) per
     agent id, or goal_sampler: K goals per agent from a goal U-Net (goal variants need one of them).
+    most_likely: instead of the K samples, the one most-likely future (`Model.most_likely`), as sample 0.
     Returns one row per (time, agent, sample, step): time_s, agent, sample, step, x, y, goal_x, goal_y.
     """
     if not isinstance(at, str) and not np.isfinite(np.asarray(at, dtype=np.float64)).all():
@@ -267,8 +295,17 @@ def predict_tracks(
     steps = to_steps(source, tracks, model.step_s, max_gap_s)
     found = observed_windows(source, steps, model.obs_len, prediction_steps(steps, at))
     labels = steps.labels[found.agent]
-    goal, pred = draw_futures(model, found, labels, k=k, seed=seed, goals=goals, goal_sampler=goal_sampler)
+    drawn = draw_futures(model, found, labels, k=k, seed=seed, goals=goals, goal_sampler=goal_sampler)
+    goal, pred = (drawn.goals[:, :1], drawn.most_likely[:, None]) if most_likely else (drawn.goals, drawn.futures)
     return _table(steps.time_of(found.t0_step[found.window]), labels, goal, pred), steps.warnings
+
+
+class Drawn(NamedTuple):
+    """What `draw_futures` gives for M agent-windows."""
+
+    goals: np.ndarray  # (M, K, 2) the goal each sample steered toward (the last position for goal-free variants)
+    futures: np.ndarray  # (M, K, pred_len, 2) metres
+    most_likely: np.ndarray  # (M, pred_len, 2) the prior's mean code decoded toward goal 1 (`Model.most_likely`)
 
 
 def draw_futures(
@@ -280,9 +317,9 @@ def draw_futures(
     seed: int,
     goals: Mapping[object, tuple[float, float]] | None,
     goal_sampler: GoalSampler | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The goals (M, K, 2) and futures (M, K, pred_len, 2) of the observed agent-windows `found`, whose agent
-    ids are `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`."""
+) -> Drawn:
+    """The goals, K futures and most-likely future of the observed agent-windows `found`, whose agent ids are
+    `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`."""
     check_k(k, len(found.xy), model.pred_len)
     check_seed(seed)
     crowd = int(np.bincount(found.window).max()) if len(found.window) else 0
@@ -333,9 +370,13 @@ def draw_futures(
     plan = plan_batches(scenes, predictor.cfg)
     columns = collect(
         sample_batches(predictor, scenes, plan, goals_of, model.device),
-        lambda batch, goals_k, futures: {"goal": goals_k.transpose(1, 2), "pred": futures.transpose(1, 2)},
+        lambda batch, goals_k, futures: {
+            "goal": goals_k.transpose(1, 2),
+            "pred": futures.transpose(1, 2),
+            "likely": predictor.most_likely(batch, goals_k[:, 0]),
+        },
     )
-    return columns["goal"], columns["pred"]
+    return Drawn(columns["goal"], columns["pred"], columns["likely"])
 
 
 def _table(t0_s: np.ndarray, labels: np.ndarray, goal: np.ndarray, pred: np.ndarray) -> pd.DataFrame:
@@ -364,6 +405,7 @@ class OnlineFutures:
     agents: np.ndarray  # (M,) ids as the detections gave them, sorted
     futures: np.ndarray  # (M, K, pred_len, 2) metres
     goals: np.ndarray  # (M, K, 2) the goal each future steered toward (the last position for goal-free variants)
+    most_likely: np.ndarray  # (M, pred_len, 2) one future per agent for a planner that wants one (`Model.most_likely`)
 
     def table(self) -> pd.DataFrame:
         """The long format of `predict_tracks`: one row per (agent, sample, step)."""
@@ -452,17 +494,19 @@ class OnlinePredictor:
         self.buffer.add(float(time_s), agents, xy)
         self.id_kind = self.id_kind or (_id_kind(agents[0]) if len(agents) else None)
         k, pred_len = self.k, self.model.pred_len
-        result = OnlineFutures(float(time_s), agents[:0], np.zeros((0, k, pred_len, 2)), np.zeros((0, k, 2)))
+        result = OnlineFutures(
+            float(time_s), agents[:0], np.zeros((0, k, pred_len, 2)), np.zeros((0, k, 2)), np.zeros((0, pred_len, 2))
+        )
         if len(agents):
             buffer = self.buffer
             steps = grid_steps(_STREAM, buffer.time, buffer.agent, buffer.xy, self.model.step_s, self.max_gap_s)
             found = observed_windows(_STREAM, steps, self.model.obs_len, np.zeros(1, np.int64), require=False)
             if len(found.xy):
                 labels = steps.labels[found.agent]
-                goal, pred = draw_futures(
+                drawn = draw_futures(
                     self.model, found, labels, k=k, seed=self.seed, goals=goals, goal_sampler=self.goal_sampler
                 )
-                result = OnlineFutures(float(time_s), labels, pred, goal)
+                result = OnlineFutures(float(time_s), labels, drawn.futures, drawn.goals, drawn.most_likely)
         return result
 
     def _checked(self, time_s: object, detections: object) -> tuple[np.ndarray, np.ndarray]:

@@ -29,7 +29,8 @@ def _times(value: str) -> str | list[float]:
     "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --out futures.parquet --plot futures.png\n\n"
     "  fftool predict tracks.csv --model cvae/3f9c2a --goals goals.csv --at all --out all.parquet"
     "   # every time with 8 observed steps\n\n"
-    "  fftool predict tracks.csv --model cpu/zara1/dr --at all --animate scene.gif"
+    "  fftool predict tracks.csv --model cpu/zara1/dr --at all --animate scene.gif\n\n"
+    "  fftool predict tracks.csv --model cpu/zara1/dr --most-likely --out path.parquet   # one future per agent"
 )
 @boundary
 def predict(
@@ -56,6 +57,14 @@ def predict(
         typer.Option("--at", help="Prediction time(s): last (the file's last time), all, or comma-separated seconds."),
     ] = "last",
     k: Annotated[int, typer.Option("--k", min=1, help="Samples per agent.")] = 20,
+    most_likely: Annotated[
+        bool,
+        typer.Option(
+            "--most-likely",
+            help="Write one future per agent instead of K: the model's path from the centre of its prior (the mean "
+            "code), toward goal 1 (the goal map's mode, or the goal given) for goal variants.",
+        ),
+    ] = False,
     seed: Annotated[
         int, typer.Option("--seed", min=0, max=2**63 - 1, help="Seed of the draws (evaluate's default is 0).")
     ] = 0,
@@ -144,7 +153,7 @@ def predict(
     sampler = load_goal_sampler(goal_model, root=root, device=chosen.device) if goal_model else None
     table, warnings = predict_tracks(
         chosen, observed, source=tracks, at=when, k=k, seed=seed, goals=per_agent, goal_sampler=sampler,
-        max_gap_s=max_gap,
+        max_gap_s=max_gap, most_likely=most_likely,
     )  # fmt: skip
     for message in warnings:
         warn(message)
@@ -152,6 +161,7 @@ def predict(
         "model": model,
         "dlow": dlow,
         "k": k,
+        "most_likely": most_likely,
         "seed": seed,
         "at": at,
         "tracks": str(tracks),

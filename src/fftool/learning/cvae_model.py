@@ -79,6 +79,19 @@ def sample(
         return model.decode_k(z.reshape(-1, *z.shape[2:]), tokens, *where, features, k)
 
 
+def most_likely(
+    model: ForceFormer, prepared: Prepared, cfg: CVAEConfig, forces_cfg: ForcesConfig | None, dt_s: float | None
+) -> torch.Tensor:
+    """One future per agent, (B, 1, A, Tf, 2) in the normalised frame: decoded from the prior's mean code
+    (z = μ of p(z | past)), the centre of the distribution the K samples are drawn from. Deterministic."""
+    with autocast(cfg, prepared.past.device):
+        tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
+        steps = prepared.future_pos.shape[2]
+        where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
+        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=1)
+        return model.decode_k(model.prior(agent_context).mu, tokens, *where, features, 1)
+
+
 def epoch_plan(
     train: SceneSet, cfg: CVAEConfig, epoch: int, n_windows: int
 ) -> tuple[list[np.ndarray], np.random.Generator]:

@@ -18,7 +18,7 @@ from fftool.artifacts.store import Artifact
 from fftool.config import EvaluateConfig
 from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch, SceneSet
-from fftool.learning.cvae_model import Trained, sample
+from fftool.learning.cvae_model import Trained, most_likely, sample
 from fftool.learning.features import prepare
 from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
 from fftool.learning.training import generator
@@ -91,6 +91,18 @@ class Predictor:
             self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick
         )
         return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
+
+    @torch.inference_mode()
+    def most_likely(self, batch: SceneBatch, goal: torch.Tensor) -> torch.Tensor:
+        """One world-frame future per agent (B, A, T, 2) toward `goal` (B, A, 2; ignored by goal-free variants):
+        the CVAE's decoding of its prior's mean code (`cvae_model.most_likely`)."""
+        if self.model is None:
+            raise ValueError("constant velocity has no prior: its sample 0 is its exact extrapolation")
+        if self.forces_cfg is not None and self.dt_s is not None:
+            batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, self.obs_len)
+        prepared = prepare(batch, self.variant, self.obs_len, goal=goal)
+        future = most_likely(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s)
+        return prepared.to_world(future)[:, 0]
 
 
 def plan_batches(scenes: SceneSet, cfg: EvaluateConfig) -> list[np.ndarray]:
