@@ -74,9 +74,10 @@ def test_corrupted_file_is_a_clear_error_and_nothing_is_kept(real_raw: Path, ser
 
 def test_fetch_cli_reports_failure_with_exit_1(serve, tmp_path: Path) -> None:
     base = serve(tmp_path) + "/nothing-here/"
-    result = CliRunner().invoke(app, ["fetch-data", "--dest", str(tmp_path / "d"), "--base-url", base])
+    result = CliRunner().invoke(app, ["fetch-data", "--dest", str(tmp_path / "d" / "raw"), "--base-url", base])
     assert result.exit_code == 1
     assert "Error: " in result.output and "download failed" in result.output and "nothing was kept" in result.output
+    assert not (tmp_path / "d").exists()  # nor the folders it made for it
 
 
 @pytest.mark.data

@@ -7,6 +7,7 @@ failed or corrupted download keeps nothing.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -56,7 +57,21 @@ def fetch_raw(
             "copy all_data/, train/ and val/ into --dest and run `fftool fetch-data` to check them"
         )
     base_url = base_url if base_url.endswith("/") else base_url + "/"
+    made = [folder for folder in (dest, *dest.parents) if not folder.exists()]  # deepest first
     dest.mkdir(parents=True, exist_ok=True)
+    try:
+        return _fill(dest, base_url, on_file)
+    except FetchError:
+        for folder in made:  # the folders this call made, and only while empty: a failure leaves no trace
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+
+
+def _fill(dest: Path, base_url: str, on_file: Callable[[str, bool], None] | None) -> dict[str, str]:
+    """Every raw file under `dest`, downloaded into a staging folder first and moved in only when all are."""
+    import pooch
+
     status: dict[str, str] = {}
     with tempfile.TemporaryDirectory(prefix=".fetch-", dir=dest) as tmp:
         staged: dict[str, Path] = {}
