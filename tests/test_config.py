@@ -166,3 +166,17 @@ def test_a_bad_variant_recipe_names_its_key(override: str, expected: str) -> Non
     with pytest.raises(ConfigError) as caught:
         load_config(None, [override])
     assert expected in str(caught.value)
+
+
+def test_the_raw_folder_defaults_to_where_fetch_data_put_the_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Beside a checkout the raw files are in ../shared; elsewhere, after `fftool fetch-data`, in its folder."""
+    from fftool.config import DEFAULT_RAW_DIR, FETCHED_RAW_DIR, DataConfig
+
+    work = tmp_path / "work"
+    (work / FETCHED_RAW_DIR).mkdir(parents=True)
+    monkeypatch.chdir(work)
+    assert DataConfig().raw_dir == FETCHED_RAW_DIR
+    (tmp_path / "shared/data/eth_ucy/raw").mkdir(parents=True)
+    assert DataConfig().raw_dir == DEFAULT_RAW_DIR  # the shared folder, where there is one

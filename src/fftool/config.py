@@ -30,6 +30,7 @@ else:  # pragma: no cover - exercised on 3.10 only
     import tomli as tomllib
 
 DEFAULT_RAW_DIR = "../shared/data/eth_ucy/raw"
+FETCHED_RAW_DIR = "data/eth_ucy/raw"  # where `fftool fetch-data` places the files by default
 # --device: how to run, never part of a fingerprint (learning.devices.resolve turns one into a torch device).
 DEVICE_CHOICES: Final = ("auto", "cpu", "cuda")
 DEFAULT_SCENES_DIR = "../shared/data/eth_ucy/scenes"
@@ -75,7 +76,15 @@ def _expected(key: str, expected: str, got: Any) -> PydanticCustomError:
 class DataConfig(_Section):
     """Where raw inputs live. Paths are not fingerprinted: raw files enter by content hash."""
 
-    raw_dir: str = DEFAULT_RAW_DIR
+    # Default: ../shared/data/eth_ucy/raw beside a checkout, or, where that is not and `fftool fetch-data` has
+    # filled ./data/eth_ucy/raw, that folder.
+    raw_dir: str = Field(
+        default_factory=lambda: (
+            FETCHED_RAW_DIR
+            if not Path(DEFAULT_RAW_DIR).is_dir() and Path(FETCHED_RAW_DIR).is_dir()
+            else DEFAULT_RAW_DIR
+        )
+    )
     # Scene images and world->pixel homographies, one folder per benchmark scene (for plots and maps).
     scenes_dir: str = DEFAULT_SCENES_DIR
     # A dataset TOML (docs/data.md, "Your own dataset"): its files replace ETH/UCY and its name is the one
