@@ -68,6 +68,7 @@ ORDER = [
     "fftool models list",
     "fftool models rekey",
     "fftool predict",  # the dr model train-cvae built, a shipped one, and the checkout's tracks.csv and goals.csv
+    "fftool export",  # not run (minutes each)
     "fftool reproduce",
     "fftool ablate",
     "fftool plot",
@@ -82,6 +83,10 @@ _TORCHRUN = (
     "starts two ranks that each import torch and fftool (half a minute on a 2-core machine); tests/test_ddp.py "
     "runs the same path (pipeline.run with torchrun's environment, 2 gloo ranks) on the tiny data"
 )
+_EXPORT = (
+    "an export traces the 12 unrolled decoding steps (over a minute even for a tiny model); tests/test_export.py "
+    "runs `fftool export` on a tiny dr CVAE with its DLow sampler and checks the graph against torch"
+)
 NOT_RUN = {
     "fftool fetch-data --dest data/eth_ucy/raw": "downloads from the internet; tests/test_fetch.py runs it against "
     "a local server, and the checkout's data/eth_ucy/raw holds the synthetic tree in its place",
@@ -89,6 +94,8 @@ NOT_RUN = {
     "checkout's pipelines/cpu.toml is the tiny profile, which the `fftool models pack` example trains",
     "fftool reproduce pipelines/paper.toml --device cuda": "the full paper configuration needs a GPU and "
     "hours; the test checkout has the quick profile only",
+    "fftool export cpu/zara1/dr --out zara1_dr/": _EXPORT,
+    "fftool export cvae/3f9c2a --dlow dlow/8e1b07 --out mine/": _EXPORT,
     "torchrun --standalone --nproc-per-node 2 -m fftool train-goal --config pipelines/quick.toml": _TORCHRUN,
     "torchrun --standalone --nproc-per-node 2 -m fftool train-cvae --variant dr --config pipelines/quick.toml": (
         _TORCHRUN

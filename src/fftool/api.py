@@ -15,7 +15,7 @@ from __future__ import annotations
 import copy
 import threading
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
@@ -80,6 +80,9 @@ class Model:
     pred_len: int
     device: torch.device
     sampler: QNet | None = None  # a DLow sampler of this CVAE: its K codes replace the prior's draws
+    fingerprints: dict[str, str] = field(
+        default_factory=dict
+    )  # kind -> fingerprint of the artifacts it was loaded from
 
     @property
     def variant(self) -> str:
@@ -222,7 +225,8 @@ def load(
     sampler = None if sampler_artifact is None else load_sampler(sampler_artifact, chosen)
     windows = [a for a in store.chain(artifact) if isinstance(a, Artifact) and a.kind == "windows"]
     stats = windows[0].manifest.stats if windows else {"obs_len": 8, "pred_len": PRED_LEN}
-    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler)
+    loaded = {a.kind: a.fingerprint for a in (artifact, sampler_artifact) if a is not None}
+    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler, loaded)
 
 
 @dataclass(frozen=True)

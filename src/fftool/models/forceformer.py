@@ -116,7 +116,7 @@ class AgentAwareAttention(nn.Module):
         """The layers' weights and biases stacked; without autograd kept until a parameter changes (sampling
         projects the same layers at every decoding step), with it stacked afresh so gradients flow."""
         parameters = [p for layer in layers for p in (layer.weight, layer.bias)]
-        if torch.is_grad_enabled():
+        if torch.is_grad_enabled() or torch.compiler.is_exporting():  # an exported graph holds the stacks itself
             return torch.cat(parameters[::2]), torch.cat(parameters[1::2])
         which, versions = tuple(map(id, layers)), tuple((p.data_ptr(), p._version) for p in parameters)
         kept = self._stacked.get(which)
@@ -155,10 +155,18 @@ class AgentAwareAttention(nn.Module):
             queries.q_self.reshape(B, H, Lq // agents, agents, dh),
             keys.k_self.reshape(B, H, Lk // agents, agents, dh),
         )  # (B, H, Tq, Tk, A)
-        grid = scores.view(B, H, Lq // agents, agents, Lk // agents, agents)
-        torch.diagonal(grid, dim1=3, dim2=5).copy_(own)
-        if allowed is not None:
-            scores.masked_fill_(~allowed[:, None], float("-inf"))  # in place: no copy of the scores
+        if torch.compiler.is_exporting():  # an exported graph is functional: the same scores without in-place writes
+            same = torch.eye(agents, dtype=torch.bool, device=scores.device)[:, None, :]  # (A, 1, A)
+            own_grid = own.permute(0, 1, 2, 4, 3)[..., None].expand(-1, -1, -1, -1, -1, agents)  # (B,H,Tq,A,Tk,A)
+            grid = torch.where(same, own_grid, scores.view(B, H, Lq // agents, agents, Lk // agents, agents))
+            scores = grid.reshape(B, H, Lq, Lk)
+            if allowed is not None:
+                scores = scores.masked_fill(~allowed[:, None], float("-inf"))
+        else:
+            grid = scores.view(B, H, Lq // agents, agents, Lk // agents, agents)
+            torch.diagonal(grid, dim1=3, dim2=5).copy_(own)
+            if allowed is not None:
+                scores.masked_fill_(~allowed[:, None], float("-inf"))  # in place: no copy of the scores
         weights = self.dropout(torch.softmax(scores, dim=-1))
         mixed = (weights @ keys.v).transpose(1, 2).flatten(2)  # (B, Lq, D)
         return self.out(mixed)
@@ -260,8 +268,8 @@ def _token_masks(agent_mask: Tensor, t_query: int, t_key: int, causal: bool) -> 
     Keys of padded agents are never allowed; every query may see itself, so no softmax row is empty
     (padded queries see only themselves). With `causal`, a token at step s sees steps <= s of everyone.
     """
-    if not causal and bool(agent_mask.all()):
-        return None  # no padding: masking would change nothing
+    if not causal and not torch.compiler.is_exporting() and bool(agent_mask.all()):
+        return None  # no padding: masking would change nothing (an exported graph masks always: no data branch)
     B, A = agent_mask.shape
     allowed = agent_mask.repeat(1, t_key)[:, None, :].expand(B, t_query * A, t_key * A)
     if causal:
@@ -462,8 +470,8 @@ class ForceFormer(nn.Module):
         caches = [KeyCache(steps * A) for _ in self.decoder]
         # Step s may read every real agent's tokens of steps <= s; a padded query also sees itself.
         padded = cross is not None  # without padding no pair is masked: skip the masks
-        allowed_all = agent_mask.repeat(1, steps)[:, None, :].expand(B, A, steps * A).clone()
-        allowed_all.view(B, A, steps, A).diagonal(dim1=1, dim2=3).fill_(True)  # own tokens, every step
+        own_token = torch.eye(A, dtype=torch.bool, device=agent_mask.device)[None, :, None, :]  # (1, A, 1, A)
+        allowed_all = (agent_mask[:, None, None, :] | own_token).expand(B, A, steps, A).reshape(B, A, steps * A)
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
         if self.output == "cv_residual":
             assert last_step is not None, "output 'cv_residual' needs the last observed step"

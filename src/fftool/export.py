@@ -1,0 +1,187 @@
+"""A trained predictor as an ONNX graph, for a planner that cannot load a pickled torch module.
+
+`fftool export cpu/zara1/dr --out zara1_dr/` writes `model.onnx` (the CVAE with its DLow sampler: its K codes
+are fixed, so the graph is deterministic) and `manifest.json` (what the graph takes and gives, in which units,
+and the fingerprints it came from). The graph takes one scene (a window of A agents, any A) at a time, and
+what the torch path computes before the network:
+
+- `past` (1, A, obs_len, 2) float32, world metres; `agent_mask` (1, A) bool (padded slots are ignored);
+- goal variants: `goals` (1, K, A, 2) float32, sample k steering toward goal k (one goal per agent: repeat it);
+- dr and re: `speed0` (1, A) float32, each agent's desired speed (m/s); re: `group` (1, A) int64, window-local
+  group ids (-1 alone): `learning.observed.desired_speed_and_groups` computes both from `past` as the torch
+  path does (the observed mean speed; DBSCAN groups).
+
+Output: `futures` (1, K, A, pred_len, 2) float32, world metres. The goal U-Net's sampling (TTST's k-means)
+stays on the host: a goal variant's graph takes goals (from `fftool.api.GoalSampler`, or a planner's own).
+A model drawn from its prior (no DLow sampler) is refused: its draws are random, so no graph could equal it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from fftool import __version__
+from fftool.errors import UsageError
+from fftool.learning.batches import SceneBatch
+from fftool.learning.features import uses_forces
+from fftool.outputs import replacing_folder
+from fftool.paper import reads_goal
+
+ONNX_FILE = "model.onnx"
+MANIFEST_FILE = "manifest.json"
+OPSET = 18
+MAX_AGENTS = 4096  # agents in one scene the graph takes
+
+
+def input_names(variant: str) -> list[str]:
+    """The graph's inputs, in order, for a CVAE variant."""
+    names = ["past", "agent_mask"]
+    names += ["goals"] if reads_goal(variant) else []
+    names += ["speed0"] if uses_forces(variant) else []
+    names += ["group"] if variant == "re" else []
+    return names
+
+
+class _Graph(torch.nn.Module):
+    """The torch path of `Model.predict` from its padded batch on, as one module of tensors in and out."""
+
+    def __init__(self, model: Any) -> None:  # an fftool.api.Model with a DLow sampler
+        super().__init__()
+        self.net, self.sampler = model.trained.model, model.sampler
+        self.predictor = model.predictor(model.sampler.k, 0, "fair" if reads_goal(model.variant) else "oracle")
+        self.variant, self.pred_len, self.k = model.variant, model.pred_len, model.sampler.k
+
+    def forward(
+        self,
+        past: torch.Tensor,
+        agent_mask: torch.Tensor,
+        goals: torch.Tensor | None = None,
+        speed0: torch.Tensor | None = None,
+        group: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        B, A, T, _ = past.shape
+        past = torch.where(agent_mask[:, :, None, None], past, torch.zeros_like(past))
+        xy = torch.cat([past, past.new_zeros(B, A, self.pred_len, 2)], 2)
+        zeros = torch.zeros_like(xy)
+        speed0 = past.new_zeros(B, A) if speed0 is None else speed0
+        group = torch.full((B, A), -1, dtype=torch.long, device=past.device) if group is None else group
+        batch = SceneBatch(xy, agent_mask, zeros, zeros, speed0, group, torch.zeros_like(group))
+        goals = past[:, None, :, T - 1].expand(-1, self.k, -1, -1) if goals is None else goals
+        return self.predictor(batch, goals)
+
+
+def example_inputs(variant: str, k: int, obs_len: int, batch: int = 1, agents: int = 3) -> dict[str, np.ndarray]:
+    """Inputs of the graph's layout: one window (a scene: the graph takes one at a time) of `agents` agents (more
+    than one: torch.export fixes a dimension of size 1)."""
+    rng = np.random.default_rng(0)
+    steps = rng.normal(0.4, 0.05, (batch, agents, obs_len, 2)).astype(np.float32)
+    past = np.cumsum(steps, 2) + rng.normal(0, 2, (batch, agents, 1, 2)).astype(np.float32)
+    values = {"past": past, "agent_mask": np.ones((batch, agents), bool)}
+    values["goals"] = np.repeat(past[:, None, :, -1] + 4.0, k, 1).astype(np.float32)
+    values["speed0"] = np.full((batch, agents), 1.0, np.float32)
+    values["group"] = np.full((batch, agents), -1, np.int64)
+    return {name: values[name] for name in input_names(variant)}
+
+
+def check_out(out: Path) -> None:
+    """Refuse (UsageError) an --out that is a link, a file, or a folder holding anything but an earlier export."""
+    if out.is_symlink():
+        raise UsageError(f"--out {out}: a symbolic link; give a new folder")
+    blocked = next((parent for parent in out.parents if parent.exists() and not parent.is_dir()), None)
+    if blocked is not None:
+        raise UsageError(f"--out {out}: {blocked} is a file, not a folder")
+    if out.is_file() or (out.is_dir() and not set(p.name for p in out.iterdir()) <= {ONNX_FILE, MANIFEST_FILE}):
+        raise UsageError(f"--out {out}: exists and is not a model fftool exported; refusing to replace it")
+    if (out / MANIFEST_FILE).is_file():
+        try:
+            mark = json.loads((out / MANIFEST_FILE).read_text()).get("format", "")
+        except (OSError, ValueError, AttributeError):
+            mark = ""
+        if not str(mark).startswith("ONNX"):
+            raise UsageError(f"--out {out}: its manifest.json is not an export's; refusing to replace it")
+
+
+@dataclass(frozen=True)
+class Exported:
+    folder: Path
+    manifest: dict[str, Any]
+
+
+def export(model: Any, out: Path, source: dict[str, str]) -> Exported:
+    """Write `model` (an fftool.api.Model with a DLow sampler) to `out` as model.onnx + manifest.json, built
+    in a temporary folder beside it and moved into place whole. source: where it came from (name, ids)."""
+    check_out(out)
+    if model.sampler is None:
+        raise UsageError(
+            f"this {model.variant} model draws from its prior (no DLow sampler): random draws have no ONNX "
+            "equivalent that equals them; export a model with a sampler (fftool models list: .../dlow)"
+        )
+    graph = _Graph(model).eval()
+    example = example_inputs(model.variant, graph.k, model.obs_len)
+    names = list(example)
+    agents = torch.export.Dim("A", max=MAX_AGENTS)
+    dims = {"past": {1: agents}, "agent_mask": {1: agents}, "goals": {2: agents}, "speed0": {1: agents}}
+    dims |= {"group": {1: agents}}
+    kwargs = {name: torch.as_tensor(example[name]) for name in names}
+    manifest = {
+        "fftool": __version__,
+        "format": f"ONNX, opset {OPSET}",
+        "variant": model.variant,
+        "k": graph.k,
+        "obs_len": model.obs_len,
+        "pred_len": model.pred_len,
+        "step_s": model.step_s,
+        "forces": model.trained.forces_config.model_dump() if model.trained.forces_config else None,
+        "inputs": {name: _describe(name, model.obs_len, graph.k) for name in names},
+        "outputs": {"futures": f"(1, {graph.k}, A, {model.pred_len}, 2) float32, world metres"},
+        "source": source,
+    }
+    with replacing_folder(out) as partial, torch.no_grad():
+        torch.onnx.export(
+            graph,
+            (),
+            str(partial / ONNX_FILE),
+            kwargs=kwargs,
+            input_names=names,
+            output_names=["futures"],
+            dynamic_shapes={name: dims[name] for name in names},
+            opset_version=OPSET,
+            dynamo=True,
+            external_data=False,
+            verbose=False,
+            optimize=False,
+        )
+        _name_output_dims(partial / ONNX_FILE, [1, graph.k, "A", model.pred_len, 2])
+        (partial / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")
+    return Exported(out, manifest)
+
+
+def _name_output_dims(path: Path, dims: list[str | int]) -> None:
+    """Write the output's shape into the graph (the exporter's shape inference fixes the agents' dimension at
+    the example's, which onnxruntime then warns about on every call)."""
+    import onnx
+
+    graph = onnx.load(str(path))
+    for dim, value in zip(graph.graph.output[0].type.tensor_type.shape.dim, dims):
+        dim.Clear()
+        if isinstance(value, str):
+            dim.dim_param = value
+        else:
+            dim.dim_value = value
+    onnx.save(graph, str(path))
+
+
+def _describe(name: str, obs_len: int, k: int) -> str:
+    return {
+        "past": f"(1, A, {obs_len}, 2) float32, world metres, the observed positions (oldest first)",
+        "agent_mask": "(1, A) bool, real agents (padded slots are ignored)",
+        "goals": f"(1, {k}, A, 2) float32, world metres, the goal of each sample",
+        "speed0": "(1, A) float32, m/s, each agent's desired speed (fftool: learning.observed)",
+        "group": "(1, A) int64, window-local group ids, -1 alone (fftool: learning.observed)",
+    }[name]

@@ -1,0 +1,68 @@
+"""`fftool export`: the ONNX graph of a CVAE and its DLow sampler gives the torch path's futures (within 1e-4 m)
+for any number of agents, run by onnxruntime alone; its folder is fftool's own."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnxruntime
+import pytest
+from typer.testing import CliRunner
+
+from fftool import pipeline
+from fftool.api import load
+from fftool.artifacts.store import ArtifactStore
+from fftool.cli import app
+from fftool.config import predictor_config
+from fftool.errors import UsageError
+from fftool.export import check_out
+from fftool.learning.observed import desired_speed_and_groups
+
+from .test_dlow import _cfg
+
+
+@pytest.mark.slow
+def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(raw_tree: Path, tmp_path: Path) -> None:
+    store = ArtifactStore(tmp_path / "artifacts")
+    built = pipeline.run(predictor_config(_cfg(raw_tree), "dr"), store, ["dlow"], benchmark="zara1")
+    cvae, dlow = built["cvae"], built["dlow"]
+    out = tmp_path / "exported"
+    args = ["export", cvae.id, "--dlow", dlow.id, "--root", str(store.root), "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert list(manifest["inputs"]) == ["past", "agent_mask", "goals", "speed0"] and manifest["k"] == 3
+    assert manifest["source"] == {"model": cvae.id, "cvae": cvae.fingerprint, "dlow": dlow.fingerprint}
+    session = onnxruntime.InferenceSession(str(out / "model.onnx"), providers=["CPUExecutionProvider"])
+    model = load(cvae.id, root=store.root, dlow=dlow.id)
+    rng = np.random.default_rng(1)
+    for agents in (1, 2, 6):
+        past = np.cumsum(rng.normal(0.3, 0.1, (1, agents, 8, 2)), 2) + rng.normal(0, 3, (1, agents, 1, 2))
+        mask = np.ones((1, agents), bool)
+        mask[0, -1] = agents < 3  # a padded slot, whatever it holds
+        goals = past[:, :, -1:] + rng.normal(3, 1, (1, agents, 3, 2))  # (B, A, K, 2): sample k heads to goal k
+        expected = model.predict(past, mask, k=3, goals=goals)  # (B, K, A, 12, 2)
+        speed0, _ = desired_speed_and_groups(past, mask, model.trained.forces_config, model.trained.dt_s)
+        inputs = {"past": past.astype(np.float32), "agent_mask": mask, "speed0": speed0.astype(np.float32)}
+        (got,) = session.run(None, inputs | {"goals": goals.transpose(0, 2, 1, 3).astype(np.float32)})
+        assert got.shape == expected.shape
+        assert np.abs(got - expected)[:, :, mask[0]].max() < 1e-4
+
+
+def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
+    earlier = tmp_path / "earlier"  # an export fftool wrote may be replaced
+    earlier.mkdir()
+    (earlier / "model.onnx").write_bytes(b"")
+    (earlier / "manifest.json").write_text(json.dumps({"format": "ONNX, opset 18"}))
+    check_out(earlier)
+    (earlier / "manifest.json").write_text("{}")
+    with pytest.raises(UsageError, match="not an export's"):
+        check_out(earlier)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    result = CliRunner().invoke(app, ["export", "cvae/0123456789ab", "--out", str(mine)])
+    assert result.exit_code == 2 and "not a model fftool exported" in result.output
+    assert (mine / "notes.txt").read_text() == "mine"
