@@ -35,21 +35,16 @@ def test_the_installed_wheels_list_install_and_predict_by_name_without_the_data(
     env = {k: v for k, v in os.environ.items() if k not in ("FFTOOL_MODELS", "FFTOOL_ARTIFACTS")}
     env |= {"PYTHONPATH": str(site), "OMP_NUM_THREADS": "1"}
 
-    def fftool(*args: str) -> str:
-        done = subprocess.run(
-            [sys.executable, "-m", "fftool", *args], cwd=work, env=env, capture_output=True, text=True, timeout=240
-        )
+    def python(*args: str) -> subprocess.CompletedProcess[str]:
+        done = subprocess.run([sys.executable, *args], cwd=work, env=env, capture_output=True, text=True, timeout=240)
         assert done.returncode == 0, done.stdout + done.stderr
+        return done
+
+    def fftool(*args: str) -> str:
+        done = python("-m", "fftool", *args)
         return done.stdout + done.stderr
 
-    where = subprocess.run(
-        [sys.executable, "-c", "import fftool, fftool_models; print(fftool.__file__, fftool_models.MODELS)"],
-        cwd=work,
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout.split()
+    where = python("-c", "import fftool, fftool_models; print(fftool.__file__, fftool_models.MODELS)").stdout.split()
     assert all(Path(p).is_relative_to(site) for p in where)  # the installed copies, not the checkout
     assert fftool("--version").strip() == f"fftool {__version__}; models: fftool-models {__version__} ({where[1]})"
     listing = fftool("models", "list")
@@ -62,16 +57,6 @@ def test_the_installed_wheels_list_install_and_predict_by_name_without_the_data(
     ]
     (work / "tracks.csv").write_text("time,agent,x,y\n" + "".join(",".join(map(str, r)) + "\n" for r in rows))
     fftool("predict", "tracks.csv", "--model", "cpu/zara1/dr", "--out", "futures.parquet")
-    futures = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            "import pandas as p; f = p.read_parquet('futures.parquet'); print(len(f), f.agent.nunique())",
-        ],
-        cwd=work,
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout.split()
+    read = "import pandas as p; f = p.read_parquet('futures.parquet'); print(len(f), f.agent.nunique())"
+    futures = python("-c", read).stdout.split()
     assert futures == [str(2 * 20 * 12), "2"]  # 2 agents × K = 20 × 12 steps
