@@ -54,7 +54,7 @@ def _package(name: str) -> str:
 def test_the_layout_is_the_documented_one() -> None:
     assert {_package(name) for name in MODULES} == {
         "",  # fftool/__init__.py
-        "__main__", "errors", "ui", "outputs", "config", "paper", "pipeline", "scheduler", "api", "zoo",
+        "__main__", "errors", "ui", "outputs", "config", "paper", "pipeline", "scheduler", "api", "zoo", "export",
         "artifacts", "dataset", "science", "models", "learning", "stages", "reporting", "cli",
     }  # fmt: skip
     assert {
