@@ -36,27 +36,30 @@ INDEX = "index.json"  # models/<profile>/index.json: every shipped model's manif
 NAME = re.compile(r"(?P<profile>[a-z0-9_]+)/(?P<benchmark>[A-Za-z0-9_.-]+)/(?P<variant>[a-z]+)")
 
 
-def models_root() -> Path:
-    """`$FFTOOL_MODELS`; else the `models/` folder of the source checkout fftool runs from; else that of the
-    installed `fftool-models` wheel (tools/build_wheels.py)."""
-    if ENV_MODELS in os.environ:
-        return Path(os.environ[ENV_MODELS])
-    checkout = Path(__file__).resolve().parents[2]
-    if (checkout / "pyproject.toml").is_file() or importlib.util.find_spec("fftool_models") is None:
-        return checkout / "models"
+def _installed_models() -> Path | None:
+    """The models/ folder of the installed `fftool-models` wheel (tools/build_wheels.py), if there is one."""
+    if importlib.util.find_spec("fftool_models") is None:
+        return None
     from fftool_models import MODELS
 
     return MODELS
 
 
+def models_root() -> Path:
+    """`$FFTOOL_MODELS`; else the `models/` folder of the source checkout fftool runs from; else that of the
+    installed `fftool-models` wheel."""
+    if ENV_MODELS in os.environ:
+        return Path(os.environ[ENV_MODELS])
+    checkout = Path(__file__).resolve().parents[2]
+    installed = _installed_models()
+    return checkout / "models" if (checkout / "pyproject.toml").is_file() or installed is None else installed
+
+
 def models_version() -> str:
     """Which models fftool uses, for `fftool --version`: the installed wheel's version, or the folder."""
     root = models_root()
-    if ENV_MODELS not in os.environ and importlib.util.find_spec("fftool_models") is not None:
-        from fftool_models import MODELS
-
-        if root == MODELS:
-            return f"fftool-models {importlib.metadata.version('fftool-models')} ({root})"
+    if root == _installed_models():
+        return f"fftool-models {importlib.metadata.version('fftool-models')} ({root})"
     return f"{root}" + ("" if root.is_dir() else " (not there: no shipped models)")
 
 
