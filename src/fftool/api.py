@@ -80,9 +80,8 @@ class Model:
     pred_len: int
     device: torch.device
     sampler: QNet | None = None  # a DLow sampler of this CVAE: its K codes replace the prior's draws
-    fingerprints: dict[str, str] = field(
-        default_factory=dict
-    )  # kind -> fingerprint of the artifacts it was loaded from
+    # kind -> fingerprint of the artifacts it was loaded from (the cvae, and its dlow sampler)
+    fingerprints: dict[str, str] = field(default_factory=dict)
 
     @property
     def variant(self) -> str:
@@ -299,7 +298,9 @@ def predict_tracks(
     steps = to_steps(source, tracks, model.step_s, max_gap_s)
     found = observed_windows(source, steps, model.obs_len, prediction_steps(steps, at))
     labels = steps.labels[found.agent]
-    drawn = draw_futures(model, found, labels, k=k, seed=seed, goals=goals, goal_sampler=goal_sampler)
+    drawn = draw_futures(
+        model, found, labels, k=k, seed=seed, goals=goals, goal_sampler=goal_sampler, most_likely=most_likely
+    )
     goal, pred = (drawn.goals[:, :1], drawn.most_likely[:, None]) if most_likely else (drawn.goals, drawn.futures)
     return _table(steps.time_of(found.t0_step[found.window]), labels, goal, pred), steps.warnings
 
@@ -309,7 +310,7 @@ class Drawn(NamedTuple):
 
     goals: np.ndarray  # (M, K, 2) the goal each sample steered toward (the last position for goal-free variants)
     futures: np.ndarray  # (M, K, pred_len, 2) metres
-    most_likely: np.ndarray  # (M, pred_len, 2) the prior's mean code decoded toward goal 1 (`Model.most_likely`)
+    most_likely: np.ndarray  # (M, pred_len, 2) the prior's mean code decoded toward goal 1; (0,) when not asked for
 
 
 def draw_futures(
@@ -321,9 +322,11 @@ def draw_futures(
     seed: int,
     goals: Mapping[object, tuple[float, float]] | None,
     goal_sampler: GoalSampler | None,
+    most_likely: bool = True,
 ) -> Drawn:
     """The goals, K futures and most-likely future of the observed agent-windows `found`, whose agent ids are
-    `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`."""
+    `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`. most_likely: decode that one
+    future too (one more encoding and K = 1 decoding per batch; `predict` asks for it only with --most-likely)."""
     check_k(k, len(found.xy), model.pred_len)
     check_seed(seed)
     crowd = int(np.bincount(found.window).max()) if len(found.window) else 0
@@ -374,13 +377,12 @@ def draw_futures(
     plan = plan_batches(scenes, predictor.cfg)
     columns = collect(
         sample_batches(predictor, scenes, plan, goals_of, model.device),
-        lambda batch, goals_k, futures: {
-            "goal": goals_k.transpose(1, 2),
-            "pred": futures.transpose(1, 2),
-            "likely": predictor.most_likely(batch, goals_k[:, 0]),
-        },
+        lambda batch, goals_k, futures: (
+            {"goal": goals_k.transpose(1, 2), "pred": futures.transpose(1, 2)}
+            | ({"likely": predictor.most_likely(batch, goals_k[:, 0])} if most_likely else {})
+        ),
     )
-    return Drawn(columns["goal"], columns["pred"], columns["likely"])
+    return Drawn(columns["goal"], columns["pred"], columns.get("likely", np.zeros(0)))
 
 
 def _table(t0_s: np.ndarray, labels: np.ndarray, goal: np.ndarray, pred: np.ndarray) -> pd.DataFrame:
