@@ -1,4 +1,4 @@
-"""Latency of `fftool.api.OnlinePredictor.update` over a long stream, and its memory over 10,000 updates.
+"""Latency of `fftool.online.OnlinePredictor.update` over a long stream, and its memory over 10,000 updates.
 
 Each update hands the predictor one frame of detections (agents walking in a plaza, every agent in view
 throughout, at the model's 0.4 s step) and times the whole call: checking the detections, the buffer,
@@ -61,7 +61,7 @@ def update_gflop(model: object, agents: int, k: int) -> float:
     """Floating-point work of one predicting update (torch.utils.flop_counter: matrix products)."""
     from torch.utils.flop_counter import FlopCounterMode
 
-    from fftool.api import OnlinePredictor
+    from fftool.online import OnlinePredictor
 
     online = OnlinePredictor(model, k=k, seed=0)
     start, velocity = walkers(agents)
@@ -79,7 +79,7 @@ def update_gflop(model: object, agents: int, k: int) -> float:
 
 def latencies(model: object, agents: int, updates: int, k: int) -> np.ndarray:
     """Seconds per predicting update of a stream of `updates` frames."""
-    from fftool.api import OnlinePredictor
+    from fftool.online import OnlinePredictor
     from fftool.paper import reads_goal
 
     online = OnlinePredictor(model, k=k, seed=0)
@@ -107,7 +107,7 @@ def rss_mib() -> float:
 
 def memory(updates: int, k: int) -> None:
     """RSS every updates/10 updates of a changing crowd (20 in view, one replaced every 5 s, 20 % of frames missed)."""
-    from fftool.api import OnlinePredictor
+    from fftool.online import OnlinePredictor
 
     online = OnlinePredictor(model_of("quick", "dr"), k=k, seed=0)
     rng = np.random.default_rng(0)

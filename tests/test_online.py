@@ -10,10 +10,11 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from fftool.api import OnlinePredictor, load, predict_tracks
+from fftool.api import load, predict_tracks
 from fftool.cli import app
 from fftool.dataset.stream import DetectionBuffer
 from fftool.errors import FftoolError, InputError, UsageError
+from fftool.online import OnlinePredictor
 
 from .conftest import REAL_RAW
 

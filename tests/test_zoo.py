@@ -19,6 +19,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError
+from fftool.online import OnlinePredictor
 from fftool.reporting.summaries import zoo_rows
 from tests.test_maps import make_scene
 from tests.test_reproduce import TINY_PIPELINE
@@ -300,8 +301,8 @@ def summaries_best(model: zoo.Shipped) -> tuple[float, float]:
 def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_made(tiny: dict[str, Path]) -> None:
     """A planner's goals steer the agents it names, by name or from a loaded model; the others get sampled goals."""
     zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
-    by_name = api.OnlinePredictor("tiny/zara1/dr", k=5, seed=1)
-    loaded = api.OnlinePredictor(api.load("tiny/zara1/dr"), goal_sampler="tiny/zara1/dr", k=5, seed=1)
+    by_name = OnlinePredictor("tiny/zara1/dr", k=5, seed=1)
+    loaded = OnlinePredictor(api.load("tiny/zara1/dr"), goal_sampler="tiny/zara1/dr", k=5, seed=1)
     passed = {1: (9.0, -4.0)}
     for online in (by_name, loaded):
         for step in range(8):
@@ -333,7 +334,7 @@ def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: 
     assert len(tables[0]) == 2 * 5 * 12 and not tables[0].isna().any().any()
     for table in tables[1:]:
         pd.testing.assert_frame_equal(table, tables[0])
-    online = api.OnlinePredictor("tiny/zara1/dr", k=5, seed=2)
+    online = OnlinePredictor("tiny/zara1/dr", k=5, seed=2)
     for t, rows in tracks[~future].groupby("time_s"):
         result = online.update(float(t), dict(zip(rows["agent"], zip(rows["x"], rows["y"]))))
     assert np.array_equal(result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy())
