@@ -80,7 +80,7 @@ def update_gflop(model: object, agents: int, k: int) -> float:
 def latencies(model: object, agents: int, updates: int, k: int) -> np.ndarray:
     """Seconds per predicting update of a stream of `updates` frames."""
     from fftool.online import OnlinePredictor
-    from fftool.paper import reads_goal
+    from fftool.variants import reads_goal
 
     online = OnlinePredictor(model, k=k, seed=0)
     start, velocity = walkers(agents)

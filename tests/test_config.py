@@ -12,7 +12,8 @@ from fftool.cli import app
 from fftool.config import SECTIONS, PipelineConfig, load_config, predictor_config, variant_section
 from fftool.dataset.scenes import BENCHMARK_TEST_SOURCES, BENCHMARKS
 from fftool.errors import ConfigError
-from fftool.paper import FORCEFORMER_VARIANTS, PAPER_NAMES, PREDICTORS
+from fftool.paper import PAPER_NAMES
+from fftool.variants import FORCEFORMER_VARIANTS, PREDICTORS
 
 FLOAT_KEYS = [
     f"{section}.{name}"

@@ -17,11 +17,12 @@ from fftool.config import CVAEConfig, ForcesConfig, load_config
 from fftool.errors import IntegrityError
 from fftool.learning import cvae_model, training
 from fftool.learning.batches import load_scene_set
-from fftool.learning.features import FEATURE_DIMS, prepare
+from fftool.learning.features import prepare
 from fftool.learning.training import save_checkpoint
 from fftool.models.forceformer import Gaussian
 from fftool.stages import cvae
 from fftool.stages.contract import StageContext
+from fftool.variants import SPECS
 
 TINY = CVAEConfig(
     d_model=16,
@@ -65,7 +66,7 @@ def test_every_variant_trains_and_reloads(inputs: dict, tmp_path: Path, variant:
     assert all(row["val_min_ade@3_m"] > 0 for row in stats["log"])
     artifact = type("A", (), {"file": lambda self, name: tmp_path / variant / name})()
     model, cfg, _, _ = cvae_model.load_model(artifact, torch.device("cpu"))
-    assert cfg.variant == variant and model.past_embed.inp.in_features == FEATURE_DIMS[variant]
+    assert cfg.variant == variant and model.past_embed.inp.in_features == SPECS[variant].feature_dim
 
 
 def test_features_follow_the_variant(inputs: dict) -> None:
@@ -73,9 +74,9 @@ def test_features_follow_the_variant(inputs: dict) -> None:
     batch = scenes.batch(
         scenes.plan(scenes.window_start[:-1].argsort()[:4], 4, 4096, __import__("numpy").random.default_rng(0))[0]
     )
-    for variant, dims in FEATURE_DIMS.items():
+    for variant, spec in SPECS.items():
         prepared = prepare(batch, variant, 8)
-        assert prepared.past.shape[-1] == dims
+        assert prepared.past.shape[-1] == spec.feature_dim
     dr = prepare(batch, "dr", 8)
     torch.testing.assert_close(dr.past[..., 4:6], batch.f_dr[:, :, :8] * batch.agent_mask[..., None, None])
     turned = prepare(batch, "dr", 8, rotate=True, generator=torch.Generator().manual_seed(0))
@@ -198,7 +199,7 @@ def test_compiled_layers_compute_the_same_and_keep_parameter_names() -> None:
     torch.manual_seed(0)
     plain = cvae_model.build_model(cfg.model_copy(update={"compile": False})).eval()
     assert compiled.state_dict().keys() == plain.state_dict().keys()  # checkpoints load either way
-    past, mask = torch.randn(3, 4, 8, FEATURE_DIMS["baseline"]), torch.tensor([[1, 1, 1, 0]] * 3, dtype=torch.bool)
+    past, mask = torch.randn(3, 4, 8, SPECS["baseline"].feature_dim), torch.tensor([[1, 1, 1, 0]] * 3, dtype=torch.bool)
     with torch.no_grad():
         torch.testing.assert_close(compiled.encode_past(past, mask)[0], plain.encode_past(past, mask)[0])
 

@@ -35,7 +35,7 @@ from fftool.learning.observed import padded_batch, scene_set
 from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
 from fftool.learning.training import generator
 from fftool.models.dlow import QNet
-from fftool.paper import reads_goal
+from fftool.variants import reads_goal
 
 
 def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> tuple[ArtifactStore, Artifact]:

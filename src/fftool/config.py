@@ -22,7 +22,7 @@ from pydantic_core import PydanticCustomError
 
 from fftool.dataset.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Part
 from fftool.errors import ConfigError
-from fftool.paper import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
+from fftool.variants import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
 
 if sys.version_info >= (3, 11):
     import tomllib

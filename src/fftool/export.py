@@ -29,9 +29,8 @@ import torch
 from fftool import __version__
 from fftool.errors import UsageError
 from fftool.learning.batches import SceneBatch
-from fftool.learning.features import uses_forces
 from fftool.outputs import replacing_folder
-from fftool.paper import reads_goal
+from fftool.variants import SPECS, reads_goal
 
 ONNX_FILE = "model.onnx"
 MANIFEST_FILE = "manifest.json"
@@ -43,7 +42,7 @@ def input_names(variant: str) -> list[str]:
     """The graph's inputs, in order, for a CVAE variant."""
     names = ["past", "agent_mask"]
     names += ["goals"] if reads_goal(variant) else []
-    names += ["speed0"] if uses_forces(variant) else []
+    names += ["speed0"] if SPECS[variant].uses_forces else []
     names += ["group"] if variant == "re" else []
     return names
 

@@ -36,7 +36,7 @@ from fftool.api import (
 from fftool.dataset.steps import grid_steps, observed_windows
 from fftool.dataset.stream import DetectionBuffer
 from fftool.errors import InputError, UsageError
-from fftool.paper import reads_goal
+from fftool.variants import reads_goal
 
 
 @dataclass(frozen=True)

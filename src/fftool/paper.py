@@ -1,26 +1,12 @@
-"""fftool's predictor names, and the ForceFormer paper's published numbers (Tables II-IV) printed beside ours.
+"""The predictors' names in print, and the ForceFormer paper's published numbers (Tables II-IV) beside ours.
 
-Predictors: baseline = AgentFormer as quoted by the paper (its post-fix numbers), goal / dr / re =
-ForceFormer-Goal / -Dr / -Re, cv = the constant-velocity reference. Table II lists only AgentFormer, -Dr and -Re.
+The baseline row is AgentFormer as quoted by the paper (its post-fix numbers). Table II lists only
+AgentFormer, -Dr and -Re. What the predictors are: fftool.variants.
 """
 
 from __future__ import annotations
 
-from typing import Final, Literal, get_args
-
-# The CVAE's input variants: the AgentFormer baseline and the inputs ForceFormer adds to it (goal, driving
-# force, repulsive force). The config's types, the CLI's checks and the tables all read these.
-ForceFormerVariant = Literal["goal", "dr", "re"]
-Variant = Literal["baseline", ForceFormerVariant]
-FORCEFORMER_VARIANTS: Final[tuple[ForceFormerVariant, ...]] = get_args(ForceFormerVariant)
-VARIANTS: Final[tuple[Variant, ...]] = get_args(Variant)
-PREDICTORS: Final[tuple[str, ...]] = ("cv", *VARIANTS)  # what `evaluate` scores, in the row order of every table
-
-
-def reads_goal(predictor: str) -> bool:
-    """Whether a predictor steers toward a goal: the ForceFormer variants do; cv and the baseline do not."""
-    return predictor in FORCEFORMER_VARIANTS
-
+from typing import Final
 
 PAPER_NAMES: Final = {
     "cv": "constant velocity",

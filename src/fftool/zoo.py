@@ -25,7 +25,7 @@ from fftool.artifacts.store import MANIFEST, Artifact, ArtifactStore, check_sche
 from fftool.config import PipelineConfig, load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError, UsageError
 from fftool.outputs import replacing_file
-from fftool.paper import VARIANTS, reads_goal
+from fftool.variants import VARIANTS, reads_goal
 
 if TYPE_CHECKING:
     from fftool.pipeline import Resolved

@@ -19,7 +19,7 @@ from typer.core import TyperGroup
 
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.errors import FftoolError, UsageError
-from fftool.paper import FORCEFORMER_VARIANTS, PREDICTORS, VARIANTS
+from fftool.variants import FORCEFORMER_VARIANTS, PREDICTORS, VARIANTS
 
 if TYPE_CHECKING:
     from fftool.config import PipelineConfig

@@ -120,9 +120,9 @@ def predict(
     from fftool.api import load, load_goal_sampler, predict_tracks
     from fftool.dataset.trackfiles import Columns, read_goals, read_tracks
     from fftool.errors import UsageError
-    from fftool.paper import reads_goal
     from fftool.reporting.predictions import check_out, prediction_figure, write_predictions
     from fftool.ui import log, warn
+    from fftool.variants import reads_goal
     from fftool.zoo import is_name
 
     when = _times(at)

@@ -17,17 +17,18 @@ from fftool.artifacts.schema import CVAE_MODEL_FILE
 from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig
 from fftool.learning.batches import SceneSet
-from fftool.learning.features import DECODER_DIMS, FEATURE_DIMS, Prepared, decoder_features, prepare
+from fftool.learning.features import Prepared, decoder_features, prepare
 from fftool.learning.training import epoch_batches, generator, model_file, validation_subset
 from fftool.models.dlow import QNet
 from fftool.models.forceformer import ForceFormer, LossParts, kl_divergence
 from fftool.science.metrics import ade_fde
+from fftool.variants import SPECS
 
 
 def build_model(cfg: CVAEConfig) -> ForceFormer:
     model = ForceFormer(
-        input_dim=FEATURE_DIMS[cfg.variant],
-        decoder_dim=DECODER_DIMS[cfg.variant],
+        input_dim=SPECS[cfg.variant].feature_dim,
+        decoder_dim=SPECS[cfg.variant].decoder_dim,
         d_model=cfg.d_model,
         n_heads=cfg.n_heads,
         d_ff=cfg.d_ff,

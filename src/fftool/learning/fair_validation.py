@@ -19,9 +19,9 @@ from fftool.errors import FftoolError
 from fftool.learning.batches import load_scene_set
 from fftool.learning.cvae_model import load_model, val_windows
 from fftool.learning.dlow_model import load_sampler
-from fftool.learning.features import TRAINING_READS
 from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
 from fftool.learning.training import validation_subset
+from fftool.variants import SPECS
 
 
 def _upstream(store: ArtifactStore, cvae: Artifact, kind: str) -> Artifact | None:
@@ -46,7 +46,9 @@ def fair_validation(
     cfg, benchmark = trained.config, str(cvae.manifest.stats["benchmark"])
     windows = _upstream(store, cvae, "windows")
     assert windows is not None, "every CVAE trains on a windows artifact"
-    val = load_scene_set(windows, _upstream(store, cvae, "forces"), benchmark, "val", reads=TRAINING_READS[cfg.variant])
+    val = load_scene_set(
+        windows, _upstream(store, cvae, "forces"), benchmark, "val", reads=SPECS[cfg.variant].training_reads
+    )
     sampled = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
     if dlow is None:
         subset, seed, sampler = val_windows(val, cfg), cfg.seed, None

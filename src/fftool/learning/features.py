@@ -5,15 +5,13 @@ and, in training, turned by one random angle per window (AgentFormer's scene rot
 goals turn with them. Inside the decoder the goal and force features are recomputed from the model's
 own predicted positions with the same force functions as the `forces` stage.
 
-Per step: baseline = [position, velocity]; goal = + [goal, position - goal]; dr = + [F_dr];
-re = + [goal, position - goal, F_re]. Decoder inputs drop the velocity, as AgentFormer's do.
+Each variant's features per step: fftool.variants.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Final
 
 import torch
 from torch import Tensor
@@ -22,27 +20,13 @@ from fftool.config import ForcesConfig
 from fftool.learning.batches import SceneBatch
 from fftool.models.forceformer import StepFeatures
 from fftool.science.social_forces import desired_direction, driving_force, group_pairs, repulsive_force
-
-FEATURE_DIMS: Final = {"baseline": 4, "goal": 8, "dr": 6, "re": 10}
-# The arrays of the forces artifact each variant reads (fftool.stages.forces.ARRAY_PARAMS: the force
-# constants each depends on). Training reads the stored forces as inputs; sampling recomputes the past
-# forces toward the sampled goal, so it reads only the decoder's desired speed and (re) the groups.
-TRAINING_READS: Final = {"baseline": (), "goal": (), "dr": ("f_dr", "speed0"), "re": ("f_re", "group_id", "speed0")}
-SAMPLING_READS: Final = {"baseline": (), "goal": (), "dr": ("speed0",), "re": ("group_id", "speed0")}
+from fftool.variants import SPECS
 
 
 def training_inputs(variant: str) -> dict[str, tuple[str, ...] | None]:
     """What training a variant's model reads (Reads.artifacts): the windows, and the forces arrays it trains on."""
-    arrays = TRAINING_READS[variant]
+    arrays = SPECS[variant].training_reads
     return {"windows": None, **({"forces": arrays} if arrays else {})}
-
-
-def uses_forces(variant: str) -> bool:
-    """Whether a variant's inputs include a social force (dr, re): only those need force constants and a time step."""
-    return bool(TRAINING_READS[variant])
-
-
-DECODER_DIMS: Final = {"baseline": 2, "goal": 6, "dr": 4, "re": 8}
 
 
 @dataclass(frozen=True)
@@ -136,7 +120,7 @@ def decoder_features(
     forces_cfg, dt_s: the force constants and time step (None for variants without forces).
     repeat: how many samples each window is repeated for (batch dim B·repeat, repeat_interleave order).
     """
-    if uses_forces(variant) and (forces_cfg is None or dt_s is None):
+    if SPECS[variant].uses_forces and (forces_cfg is None or dt_s is None):
         raise ValueError(f"the {variant} variant decodes with social forces: it needs their constants and time step")
     rep = (lambda x: x.repeat_interleave(repeat, 0)) if repeat > 1 else (lambda x: x)
     goal, speed0, groups, mask = (

@@ -18,9 +18,9 @@ from torch import Tensor
 from fftool.artifacts.store import Artifact
 from fftool.config import ForcesConfig, GoalTrainingConfig
 from fftool.learning.batches import SceneBatch, SceneSet
-from fftool.learning.features import TRAINING_READS
 from fftool.learning.protocols import with_forces
 from fftool.learning.sampling import load_sampled_goals
+from fftool.variants import SPECS
 
 _STANDING_M = 1e-3  # a last observed step shorter than this has no heading: the frame is the world's
 
@@ -114,7 +114,7 @@ class ModuleGoals:
         variant reads recomputed toward them (observed and future)."""
         goal = self.errors.draw(batch.xy, obs_len, gen)
         if forces_cfg is not None and dt_s is not None:
-            batch = with_forces(batch, goal, forces_cfg, dt_s, obs_len, TRAINING_READS[variant])
+            batch = with_forces(batch, goal, forces_cfg, dt_s, obs_len, SPECS[variant].training_reads)
         return batch, goal
 
 

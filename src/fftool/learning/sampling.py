@@ -23,8 +23,8 @@ from fftool.learning.features import prepare
 from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_windows, with_past_forces
 from fftool.learning.training import generator
 from fftool.models.dlow import QNet
-from fftool.paper import reads_goal
 from fftool.science.metrics import ade_fde
+from fftool.variants import reads_goal
 
 # (batch, positions of its slots in the scene set's rows, -1 for padding) -> (B, K, A, 2) world goals
 GoalsOf = Callable[[SceneBatch, np.ndarray], torch.Tensor]

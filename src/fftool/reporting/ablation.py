@@ -26,9 +26,9 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
 from fftool.errors import UsageError
 from fftool.outputs import replacing_folder
-from fftool.paper import PREDICTORS
 from fftool.reporting import claims, score_plots, scores, tables
 from fftool.stages.evaluate import METRIC_DEFINITIONS
+from fftool.variants import PREDICTORS
 
 
 def predictors(cfg: PipelineConfig, variants: Iterable[str]) -> list[str]:

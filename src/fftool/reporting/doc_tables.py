@@ -12,7 +12,8 @@ from pathlib import Path
 import pandas as pd
 
 from fftool.dataset.scenes import BENCHMARKS, PUBLISHED_GOAL_FDE20
-from fftool.paper import PAPER_NAMES, PREDICTORS, PUBLISHED_REFERENCES, TABLE2_ADE_FDE, TABLE3_FDE, reads_goal
+from fftool.paper import PAPER_NAMES, PUBLISHED_REFERENCES, TABLE2_ADE_FDE, TABLE3_FDE
+from fftool.variants import PREDICTORS, reads_goal
 
 _PROTOCOL_NAMES = {"fair": "fair", "paper": "paper's pick", "oracle": "true goal"}
 _GOAL_MODULES = ("Y-net", "Goal-SAR")

@@ -11,7 +11,7 @@ from rich.table import Table
 
 from fftool.artifacts.store import Artifact
 from fftool.dataset.scenes import BENCHMARKS
-from fftool.paper import reads_goal
+from fftool.variants import reads_goal
 
 
 def _benchmark_part_table(title: str, columns: tuple[str, ...], rows: list[tuple[str, str, list[str]]]) -> Table:

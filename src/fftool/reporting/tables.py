@@ -19,8 +19,9 @@ from typing import Final
 import pandas as pd
 
 from fftool.dataset.scenes import BENCHMARKS
-from fftool.paper import PAPER_NAMES, PREDICTORS, PUBLISHED_REFERENCES, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
+from fftool.paper import PAPER_NAMES, PUBLISHED_REFERENCES, TABLE2_ADE_FDE, TABLE3_FDE, TABLE4_COLLISIONS
 from fftool.reporting.scores import MEANS, Score, combine
+from fftool.variants import PREDICTORS
 
 Scores = Mapping[tuple[str, str, str], Score]
 

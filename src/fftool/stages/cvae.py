@@ -1,6 +1,6 @@
 """Train the AgentFormer CVAE with a ForceFormer input variant on one leave-one-out benchmark.
 
-Reads: windows and, for the dr and re variants, the forces arrays they use (`features.TRAINING_READS`).
+Reads: windows and, for the dr and re variants, the forces arrays they use (`fftool.variants.SPECS`).
 Training goals are the ground truth, or, for goal variants with `goal_training.source = "module"`, the
 ground truth moved by the goal module's own errors (`learning.goal_errors`, from the goals artifact's
 validation part), the best epoch then chosen under the fair protocol on validation. Writes: `cvae/<fp>/model.pt` (best
@@ -32,7 +32,7 @@ from fftool.config import CVAEConfig, ForcesConfig, GoalTrainingConfig, Pipeline
 from fftool.learning import distributed, goal_errors
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, build_model, epoch_plan, training_loss, val_windows, validate
-from fftool.learning.features import TRAINING_READS, prepare, training_inputs
+from fftool.learning.features import prepare, training_inputs
 from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
     epoch_seed,
@@ -45,8 +45,8 @@ from fftool.learning.training import (
     seed_all,
 )
 from fftool.models.forceformer import ForceFormer
-from fftool.paper import reads_goal
 from fftool.stages.contract import Reads, Stage, StageContext
+from fftool.variants import SPECS, reads_goal
 
 NAME: Final = "cvae"
 
@@ -168,7 +168,7 @@ def _trainer(
 ) -> _Trainer:
     """The benchmark's scenes with the forces the variant reads, and a fresh model seeded by the run's seed;
     with the goal module's goals (`goals`), its errors for training and its validation goals."""
-    reads = TRAINING_READS[cfg.variant]
+    reads = SPECS[cfg.variant].training_reads
     train = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride, reads)
     val = load_scene_set(windows, forces, benchmark, "val", reads=reads)
     val_subset = val_windows(val, cfg)

@@ -27,7 +27,7 @@ from fftool.config import DLowConfig, GoalTrainingConfig, PipelineConfig
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import Trained, load_model, sample, val_metrics
 from fftool.learning.dlow_model import Preset, build_sampler, preset, training_loss
-from fftool.learning.features import TRAINING_READS, prepare, training_inputs
+from fftool.learning.features import prepare, training_inputs
 from fftool.learning.goal_errors import ModuleGoals, module_goals
 from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
@@ -42,8 +42,8 @@ from fftool.learning.training import (
     validation_subset,
 )
 from fftool.models.dlow import QNet
-from fftool.paper import reads_goal
 from fftool.stages.contract import Reads, Stage, StageContext
+from fftool.variants import SPECS, reads_goal
 
 NAME: Final = "dlow"
 
@@ -151,7 +151,7 @@ def train(
     benchmark, device = ctx.need_benchmark(), ctx.device()
     trained = load_model(cvae, device)
     trained.model.requires_grad_(False)  # frozen, and in eval mode (load_model)
-    reads = TRAINING_READS[trained.config.variant]
+    reads = SPECS[trained.config.variant].training_reads
     train_set = load_scene_set(windows, forces, benchmark, "train", cfg.train_stride, reads)
     val = load_scene_set(windows, forces, benchmark, "val", reads=reads)
     seed_all(cfg.seed)

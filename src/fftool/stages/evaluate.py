@@ -31,11 +31,10 @@ from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch, load_scene_set
 from fftool.learning.cvae_model import load_model
 from fftool.learning.dlow_model import load_sampler
-from fftool.learning.features import SAMPLING_READS
 from fftool.learning.sampling import Predictor, collect, load_sampled_goals, plan_batches, sample_batches
-from fftool.paper import reads_goal
 from fftool.science.metrics import agent_metrics, collision_count
 from fftool.stages.contract import Reads, Stage, StageContext
+from fftool.variants import SPECS, reads_goal
 
 NAME: Final = "evaluate"
 
@@ -75,7 +74,7 @@ def declare(cfg: PipelineConfig) -> Reads:
             command=" --variant cv",
         )
     goal = reads_goal(predictor)
-    arrays = SAMPLING_READS[predictor]
+    arrays = SPECS[predictor].sampling_reads
     artifacts: dict[str, tuple[str, ...] | None] = {"windows": None, **({"forces": arrays} if arrays else {})}
     artifacts["cvae"] = None
     if predictor in cfg.dlow.variants:  # AgentFormer's test-time sampler over that CVAE
@@ -128,7 +127,7 @@ def sample_and_score(
     sampler `dlow` of the CVAE when given one, else from the CVAE's prior)."""
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
-    reads = SAMPLING_READS[cvae.manifest.params["variant"]] if cvae is not None else ()
+    reads = SPECS[cvae.manifest.params["variant"].sampling_reads] if cvae is not None else ()
     scenes = load_scene_set(windows, forces, benchmark, cfg.part, reads=reads)
     # Count agent-windows, not windows: an empty part still has one (empty) window in scenes.window_start.
     if len(scenes.data) == 0:
