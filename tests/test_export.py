@@ -19,6 +19,7 @@ from fftool.config import predictor_config
 from fftool.errors import UsageError
 from fftool.export import check_out
 from fftool.learning.observed import desired_speed_and_groups
+from fftool.online import OnlinePredictor
 
 from .test_dlow import _cfg
 
@@ -37,6 +38,7 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(raw_tre
     assert manifest["source"] == {"model": cvae.id, "cvae": cvae.fingerprint, "dlow": dlow.fingerprint}
     session = onnxruntime.InferenceSession(str(out / "model.onnx"), providers=["CPUExecutionProvider"])
     model = load(cvae.id, root=store.root, dlow=dlow.id)
+    assert load(dlow.id, root=store.root).fingerprints == model.fingerprints  # a sampler brings its CVAE
     rng = np.random.default_rng(1)
     for agents in (1, 2, 6):
         past = np.cumsum(rng.normal(0.3, 0.1, (1, agents, 8, 2)), 2) + rng.normal(0, 3, (1, agents, 1, 2))
@@ -49,6 +51,22 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(raw_tre
         (got,) = session.run(None, inputs | {"goals": goals.transpose(0, 2, 1, 3).astype(np.float32)})
         assert got.shape == expected.shape
         assert np.abs(got - expected)[:, :, mask[0]].max() < 1e-4
+
+    # The online predictor on the export (onnxruntime) gives the torch one's futures, update by update.
+    with pytest.raises(UsageError, match="exported with K = 3"):
+        OnlinePredictor(out)
+    by_graph, by_torch = OnlinePredictor(out, k=3), OnlinePredictor(model, k=3)
+    for step in range(10):
+        detections = {agent: (0.5 * step * (agent - 6), 0.3 * agent - 0.1 * step) for agent in (7, 8, 9)}
+        goals = {agent: (8.0 + agent, -2.0) for agent in detections}
+        graph, torch_path = (
+            by_graph.update(0.4 * step, detections, goals),
+            by_torch.update(0.4 * step, detections, goals),
+        )
+        assert list(graph.agents) == list(torch_path.agents) == ([7, 8, 9] if step >= 7 else [])
+        np.testing.assert_allclose(graph.goals, torch_path.goals)
+        assert graph.futures.shape == torch_path.futures.shape
+        assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
 
 
 def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:

@@ -54,10 +54,18 @@ def _cvae_and_sampler(
     ref: str | Path, root: Path | None, dlow: str | Path | None
 ) -> tuple[ArtifactStore, Artifact, Artifact | None]:
     """The CVAE artifact `ref` names, its store, and the DLow sampler to draw through: `dlow` when given, else,
-    for a shipped model's name, the one its profile evaluates it with."""
+    for a shipped model's name, the one its profile evaluates it with, or `ref` itself when it names a DLow
+    sampler (its CVAE comes with it, from the same store)."""
     if zoo.is_name(ref):
         bundle = zoo.find(str(ref))
         store, cvae, sampler = bundle.store, bundle.cvae, bundle.dlow
+    elif dlow is None and ArtifactStore.open(ref, root)[1].kind == "dlow":
+        store, sampler = find_artifact(ref, "dlow", root)
+        found = store.lookup("cvae", sampler.manifest.sources.get("cvae", ""))
+        if found is None:
+            raise FftoolError(f"{ref}: the CVAE it was trained over is not in {store.root}")
+        cvae = found
+        find_artifact(cvae.path, "cvae", root)  # checked as any CVAE named directly
     else:
         store, cvae = find_artifact(ref, "cvae", root)
         sampler = None
@@ -214,7 +222,8 @@ def load(
 ) -> Model:
     """A trained CVAE from its artifact id (`cvae/3f9c2a`), folder, or shipped name (`cpu/zara1/dr`, `fftool models
     list`), on `device` (cpu, cuda); with `dlow` (a `dlow` artifact trained over this CVAE) its K futures come from
-    AgentFormer's DLow sampler, as they do for a shipped model its profile evaluates through one."""
+    AgentFormer's DLow sampler, as they do for a shipped model its profile evaluates through one. A DLow
+    sampler's own id (`dlow/8e1b07`) loads it with the CVAE it was trained over."""
     store, artifact, sampler_artifact = _cvae_and_sampler(ref, root, dlow)
     chosen = devices.resolve(device)
     trained = load_model(artifact, chosen)
@@ -353,24 +362,20 @@ def draw_futures(
     predictor = model.predictor(k, seed)
     goals_of = predictor.goals
     if reads_goal(model.variant):
-        passed = [label in goals for label in labels] if goals is not None else [False] * len(labels)
-        given = np.array([goals[label] if ok else (np.nan, np.nan) for label, ok in zip(labels, passed)], np.float64)
-        if all(passed):  # every agent's goal is known: one goal for all K samples
+        chosen, all_passed = goals_per_sample(
+            model.variant, labels, found.xy, goals, goal_sampler, k=k, seed=seed, pred_len=model.pred_len,
+            device=model.device,
+        )  # fmt: skip
+        if all_passed:  # every agent's goal is known: one goal for all K samples
+            given = chosen[:, 0]
 
             def goals_of(batch: object, positions: np.ndarray) -> torch.Tensor:
-                chosen = torch.as_tensor(given[np.where(positions >= 0, positions, 0)], dtype=torch.float32)
-                return chosen.to(model.device)[:, None].expand(-1, k, -1, -1)
+                known = torch.as_tensor(given[np.where(positions >= 0, positions, 0)], dtype=torch.float32)
+                return known.to(model.device)[:, None].expand(-1, k, -1, -1)
 
-        elif goal_sampler is not None:  # sample k decodes goal k; a passed goal replaces an agent's K samples
-            sampled = goal_sampler.sample(found.xy, k, seed, model.pred_len, model.device)
-            sampled[np.asarray(passed)] = given[np.asarray(passed), None].astype(sampled.dtype)
-            predictor = model.predictor(k, seed, "fair", sampled)
+        else:  # sample k decodes goal k
+            predictor = model.predictor(k, seed, "fair", chosen)
             goals_of = predictor.goals
-        elif goals is not None:
-            missing = [label for label, ok in zip(labels, passed) if not ok]
-            raise FftoolError(f"no goal given for agent(s) {', '.join(map(str, list(dict.fromkeys(missing))[:5]))}")
-        else:
-            raise UsageError(f"the {model.variant} variant steers toward goals: give goals or a goal U-Net")
     plan = plan_batches(scenes, predictor.cfg)
     columns = collect(
         sample_batches(predictor, scenes, plan, goals_of, model.device),
@@ -380,6 +385,36 @@ def draw_futures(
         ),
     )
     return Drawn(columns["goal"], columns["pred"], columns.get("likely", np.zeros(0)))
+
+
+def goals_per_sample(
+    variant: str,
+    labels: np.ndarray,
+    past: np.ndarray,
+    goals: Mapping[object, tuple[float, float]] | None,
+    goal_sampler: GoalSampler | None,
+    *,
+    k: int,
+    seed: int,
+    pred_len: int,
+    device: torch.device,
+) -> tuple[np.ndarray, bool]:
+    """(M, K, 2) the goal each of K samples of a goal variant steers toward, for agents `labels` (M,) observed
+    at `past` (M, T, 2), and whether every agent's goal was passed. A passed goal comes first (all K samples
+    head to it); the others get the goal sampler's K goals (sample k, goal k), or an error names them."""
+    passed = np.array([goals is not None and label in goals for label in labels], bool)
+    given = np.array([goals[label] if ok else (np.nan, np.nan) for label, ok in zip(labels, passed)], np.float64)
+    given = given.reshape(len(labels), 2)
+    if passed.all():
+        return np.repeat(given[:, None], k, 1), True
+    if goal_sampler is not None:
+        sampled = goal_sampler.sample(past, k, seed, pred_len, device)
+        sampled[passed] = given[passed, None].astype(sampled.dtype)
+        return sampled, False
+    if goals is not None:
+        missing = list(dict.fromkeys(labels[~passed].tolist()))[:5]
+        raise FftoolError(f"no goal given for agent(s) {', '.join(map(str, missing))}")
+    raise UsageError(f"the {variant} variant steers toward goals: give goals or a goal U-Net")
 
 
 def futures_table(t0_s: np.ndarray, labels: np.ndarray, goal: np.ndarray, pred: np.ndarray) -> pd.DataFrame:

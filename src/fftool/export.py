@@ -88,6 +88,15 @@ def example_inputs(variant: str, k: int, obs_len: int, batch: int = 1, agents: i
     return {name: values[name] for name in input_names(variant)}
 
 
+def is_export(folder: Path) -> bool:
+    """Whether `folder` holds what `export` writes: a manifest.json whose format names ONNX."""
+    try:
+        mark = json.loads((folder / MANIFEST_FILE).read_text()).get("format", "")
+    except (OSError, ValueError, AttributeError):
+        mark = ""
+    return str(mark).startswith("ONNX")
+
+
 def check_out(out: Path) -> None:
     """Refuse (UsageError) an --out that is a link, a file, or a folder holding anything but an earlier export."""
     if out.is_symlink():
@@ -97,13 +106,8 @@ def check_out(out: Path) -> None:
         raise UsageError(f"--out {out}: {blocked} is a file, not a folder")
     if out.is_file() or (out.is_dir() and not set(p.name for p in out.iterdir()) <= {ONNX_FILE, MANIFEST_FILE}):
         raise UsageError(f"--out {out}: exists and is not a model fftool exported; refusing to replace it")
-    if (out / MANIFEST_FILE).is_file():
-        try:
-            mark = json.loads((out / MANIFEST_FILE).read_text()).get("format", "")
-        except (OSError, ValueError, AttributeError):
-            mark = ""
-        if not str(mark).startswith("ONNX"):
-            raise UsageError(f"--out {out}: its manifest.json is not an export's; refusing to replace it")
+    if (out / MANIFEST_FILE).is_file() and not is_export(out):
+        raise UsageError(f"--out {out}: its manifest.json is not an export's; refusing to replace it")
 
 
 @dataclass(frozen=True)

@@ -23,12 +23,14 @@ import torch
 from fftool import zoo
 from fftool.api import (
     MAX_ABS_COORDINATE_M,
+    Drawn,
     GoalSampler,
     Model,
     check_k,
     check_seed,
     draw_futures,
     futures_table,
+    goals_per_sample,
     load,
     load_goal_sampler,
     off_limits,
@@ -36,6 +38,8 @@ from fftool.api import (
 from fftool.dataset.steps import grid_steps, observed_windows
 from fftool.dataset.stream import DetectionBuffer
 from fftool.errors import InputError, UsageError
+from fftool.export import is_export
+from fftool.exported import ExportedModel
 from fftool.variants import reads_goal
 
 
@@ -47,7 +51,9 @@ class OnlineFutures:
     agents: np.ndarray  # (M,) ids as the detections gave them, sorted
     futures: np.ndarray  # (M, K, pred_len, 2) metres
     goals: np.ndarray  # (M, K, 2) the goal each future steered toward (the last position for goal-free variants)
-    most_likely: np.ndarray  # (M, pred_len, 2) one future per agent for a planner that wants one (`Model.most_likely`)
+    # (M, pred_len, 2) one future per agent for a planner that wants one (`Model.most_likely`); empty (0,) from an
+    # exported model, whose graph gives the K futures only
+    most_likely: np.ndarray
 
     def table(self) -> pd.DataFrame:
         """The long format of `predict_tracks`: one row per (agent, sample, step)."""
@@ -60,7 +66,8 @@ Detections = Mapping[object, tuple[float, float]]  # agent id -> (x, y) metres
 class OnlinePredictor:
     """A trained model in a control loop: feed detections as they come, get K futures per agent in view.
 
-        online = OnlinePredictor("cpu/zara1/dr", k=20)     # a Model, an artifact id, folder or shipped name
+        online = OnlinePredictor("cpu/zara1/dr", k=20)     # a Model, an artifact id, folder or shipped name,
+                                                           # or the folder of `fftool export` (onnxruntime)
         for time_s, detections in tracker:                 # {agent id: (x, y) metres}, at the sensor's rate
             result = online.update(time_s, detections)     # result.futures: (M, K, 12, 2) for result.agents
 
@@ -75,7 +82,7 @@ class OnlinePredictor:
 
     def __init__(
         self,
-        model: Model | str | Path,
+        model: Model | ExportedModel | str | Path,
         *,
         k: int = 20,
         seed: int = 0,
@@ -86,7 +93,14 @@ class OnlinePredictor:
     ) -> None:
         """goal_sampler: a goal U-Net (or its reference) drawing K goals per agent for goal variants; a shipped
         goal variant brings its own. Without one, goal variants take `goals` in each update."""
-        if not isinstance(model, Model):
+        if isinstance(model, (str, Path)) and is_export(Path(model)):
+            model = ExportedModel.load(model)
+        if isinstance(model, ExportedModel):
+            if k != model.k:
+                raise UsageError(f"k = {k}: {model.folder} was exported with K = {model.k} (its graph's codes)")
+            if goal_sampler is None and model.source and zoo.is_name(model.source) and reads_goal(model.variant):
+                goal_sampler = model.source  # exported from a shipped goal variant: its goal U-Net
+        elif not isinstance(model, Model):
             shipped = zoo.is_name(model)
             name, model = model, load(model, root=root, device=device)
             if goal_sampler is None and shipped and reads_goal(model.variant):
@@ -145,11 +159,28 @@ class OnlinePredictor:
             found = observed_windows(_STREAM, steps, self.model.obs_len, np.zeros(1, np.int64), require=False)
             if len(found.xy):
                 labels = steps.labels[found.agent]
-                drawn = draw_futures(
-                    self.model, found, labels, k=k, seed=self.seed, goals=goals, goal_sampler=self.goal_sampler
-                )
+                if isinstance(self.model, ExportedModel):
+                    drawn = self._exported(found.xy, labels, goals)
+                else:
+                    drawn = draw_futures(
+                        self.model, found, labels, k=k, seed=self.seed, goals=goals, goal_sampler=self.goal_sampler
+                    )
                 result = OnlineFutures(float(time_s), labels, drawn.futures, drawn.goals, drawn.most_likely)
         return result
+
+    def _exported(self, past: np.ndarray, labels: np.ndarray, goals: Detections | None) -> Drawn:
+        """An exported model's K futures of the agents observed at past (M, obs_len, 2): one scene, one call of
+        its graph; the same goals as the torch path (passed first, else the goal sampler's K)."""
+        model, k = self.model, self.k
+        assert isinstance(model, ExportedModel)
+        if reads_goal(model.variant):
+            chosen, _ = goals_per_sample(
+                model.variant, labels, past, goals, self.goal_sampler, k=k, seed=self.seed, pred_len=model.pred_len,
+                device=model.device,
+            )  # fmt: skip
+        else:
+            chosen = np.repeat(past[:, None, -1], k, 1)
+        return Drawn(chosen, model.futures(past, chosen if reads_goal(model.variant) else None), np.zeros(0))
 
     def _checked(self, time_s: object, detections: object) -> tuple[np.ndarray, np.ndarray]:
         """(M,) agent ids and (M, 2) positions of an update, or an InputError before any state changes."""

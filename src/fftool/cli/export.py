@@ -13,13 +13,16 @@ from fftool.cli.app import RootOption, app, boundary
 @app.command(
     epilog="Examples:\n\n"
     "  fftool export cpu/zara1/dr --out zara1_dr/        # a shipped model: its CVAE with its DLow sampler\n\n"
-    "  fftool export cvae/3f9c2a --dlow dlow/8e1b07 --out mine/"
+    "  fftool export dlow/8e1b07 --out mine/                # a DLow sampler you trained, over its CVAE"
 )
 @boundary
 def export(
     model: Annotated[
         str,
-        typer.Argument(help="A shipped model's name (cpu/zara1/dr) or a trained CVAE's artifact id or folder."),
+        typer.Argument(
+            help="A shipped model's name (cpu/zara1/dr), a DLow sampler's artifact id or folder (with its CVAE), "
+            "or a CVAE's (with --dlow)."
+        ),
     ],
     out: Annotated[Path, typer.Option("--out", file_okay=False, help="Folder for model.onnx and manifest.json.")],
     dlow: Annotated[

@@ -1,0 +1,87 @@
+"""An `fftool export` folder run by onnxruntime: the K futures of one scene per call, as the torch path gives
+them within 1e-4 m. `fftool.online.OnlinePredictor` runs on one when given its folder; a planner's own code
+needs only onnxruntime and the manifest (docs/api.md)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from fftool.config import ForcesConfig
+from fftool.errors import InputError, UsageError
+from fftool.export import MANIFEST_FILE, ONNX_FILE, input_names, is_export
+from fftool.learning.observed import desired_speed_and_groups
+
+
+@dataclass(frozen=True)
+class ExportedModel:
+    """An exported predictor: its manifest's facts and an onnxruntime session of its graph (CPU)."""
+
+    folder: Path
+    manifest: dict[str, Any]
+    session: Any  # onnxruntime.InferenceSession
+    forces_config: ForcesConfig | None
+    device = torch.device("cpu")  # where a goal sampler beside it runs
+
+    @classmethod
+    def load(cls, folder: str | Path) -> ExportedModel:
+        """The export in `folder`, or an error naming what is missing (UsageError) or damaged (InputError)."""
+        folder = Path(folder)
+        if not is_export(folder):
+            raise UsageError(f"{folder}: not a folder `fftool export` wrote ({MANIFEST_FILE} of an ONNX export)")
+        try:
+            import onnxruntime
+        except ImportError:
+            raise UsageError('running an exported model needs onnxruntime: pip install "fftool[onnx]"') from None
+        manifest = json.loads((folder / MANIFEST_FILE).read_text())
+        missing = [key for key in ("variant", "k", "obs_len", "pred_len", "step_s", "inputs") if key not in manifest]
+        if missing or list(manifest["inputs"]) != input_names(str(manifest["variant"])):
+            raise InputError(f"{folder / MANIFEST_FILE}: missing {missing or 'the inputs of its variant'}")
+        try:
+            session = onnxruntime.InferenceSession(str(folder / ONNX_FILE), providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime's own errors: a missing or damaged graph
+            raise InputError(f"{folder / ONNX_FILE}: not a graph onnxruntime can load ({exc})") from None
+        forces = manifest.get("forces")
+        return cls(folder, manifest, session, ForcesConfig(**forces) if forces else None)
+
+    @property
+    def variant(self) -> str:
+        return str(self.manifest["variant"])
+
+    @property
+    def k(self) -> int:
+        return int(self.manifest["k"])
+
+    @property
+    def obs_len(self) -> int:
+        return int(self.manifest["obs_len"])
+
+    @property
+    def pred_len(self) -> int:
+        return int(self.manifest["pred_len"])
+
+    @property
+    def step_s(self) -> float:
+        return float(self.manifest["step_s"])
+
+    @property
+    def source(self) -> str | None:
+        """The model it was exported from, as the user named it (a shipped name, an id or a folder)."""
+        return self.manifest.get("source", {}).get("model")
+
+    def futures(self, past: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
+        """(M, K, pred_len, 2) metres for the M agents of one scene observed at past (M, obs_len, 2) metres;
+        goals (M, K, 2) for goal variants, sample k steering toward goal k."""
+        past = np.asarray(past, np.float32)[None]
+        mask = np.ones(past.shape[:2], bool)
+        speed0, group = desired_speed_and_groups(past, mask, self.forces_config, self.step_s)
+        values = {"past": past, "agent_mask": mask, "speed0": speed0.astype(np.float32), "group": group}
+        if goals is not None:
+            values["goals"] = np.asarray(goals, np.float32).transpose(1, 0, 2)[None]
+        (futures,) = self.session.run(None, {name: values[name] for name in self.manifest["inputs"]})
+        return futures[0].transpose(1, 0, 2, 3)
