@@ -127,7 +127,7 @@ def sample_and_score(
     sampler `dlow` of the CVAE when given one, else from the CVAE's prior)."""
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
-    reads = SPECS[cvae.manifest.params["variant"].sampling_reads] if cvae is not None else ()
+    reads = SPECS[cvae.manifest.params["variant"]].sampling_reads if cvae is not None else ()
     scenes = load_scene_set(windows, forces, benchmark, cfg.part, reads=reads)
     # Count agent-windows, not windows: an empty part still has one (empty) window in scenes.window_start.
     if len(scenes.data) == 0:
