@@ -155,6 +155,17 @@ def test_a_profile_change_orphans_the_models_and_rekey_refuses_other_parameters(
         zoo.rekey("tiny")
 
 
+def test_a_pack_drops_the_models_its_profile_no_longer_trains(tiny: dict[str, Path]) -> None:
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    sampler = next(m for m in zoo.shipped("tiny") if m.name == "tiny/zara1/baseline/dlow")
+    profile = tiny["pipelines"] / "tiny.toml"
+    profile.write_text(profile.read_text().replace('variants = ["baseline"]', "variants = []"))  # no sampler now
+    packed = zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    assert "tiny/zara1/baseline/dlow" not in packed
+    assert {m.name for m in zoo.shipped("tiny")} == {"tiny/zara1/goal-unet", "tiny/zara1/baseline", "tiny/zara1/dr"}
+    assert not sampler.artifact.path.exists() and not zoo.orphans(zoo.shipped("tiny"))
+
+
 def test_a_failed_pack_leaves_no_models_folder(tiny: dict[str, Path]) -> None:
     with pytest.raises(FftoolError, match="has no goal model of zara1"):
         zoo.pack(ArtifactStore(tiny["tmp"] / "empty"), "tiny", ["zara1"])

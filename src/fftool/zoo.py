@@ -342,8 +342,8 @@ def lineage(builds: dict[str, Resolved], kind: str) -> dict[str, Any]:
 
 def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
     """Copy a benchmark's trained models from `source` into `models/<profile>/` (all of them or nothing), each
-    with its lineage, and remove the shipped models they replace (the same name, another fingerprint); the
-    names packed."""
+    with its lineage, and remove the shipped models of those benchmarks they replace (the same name, another
+    fingerprint) or the profile no longer trains (a sampler it dropped); the names packed."""
     cfg = profile_config(profile)
     chosen = list(benchmarks)
     plan = []
@@ -367,11 +367,17 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     old = {m.name: m for m in shipped(profile, chosen, root)}
     packed = []
     for artifact, manifest in plan:
+        kept = next((m for m in old.values() if m.artifact.fingerprint == artifact.fingerprint), None)
+        if kept is not None:  # shipped already: left as it is, with what `validate` recorded
+            packed.append(kept.name)
+            continue
         model = Shipped(profile, zoo.adopt(artifact, manifest))
         replaced = old.get(model.name)
-        if replaced is not None and replaced.artifact.fingerprint != model.artifact.fingerprint:
+        if replaced is not None:
             zoo.remove(replaced.artifact)
         packed.append(model.name)
+    for name in old.keys() - set(packed):
+        zoo.remove(old[name].artifact)
     write_index(zoo)
     return packed
 
