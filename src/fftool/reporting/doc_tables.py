@@ -204,3 +204,19 @@ def targets_table(goal_fde_csv: Path | str, fair_results_csv: Path | str) -> str
                      f"< {collisions['baseline']:.0f}", f"{collisions['re']:.0f}",
                      met(collisions["re"] < collisions["baseline"])])  # fmt: skip
     return _markdown(["target", "bar", "measured (test)", ""], rows, numeric_from=1)
+
+
+def gap_table(results_csv: Path | str) -> str:
+    """Each goal variant minus AgentFormer, minADE / minFDE in metres (negative: the variant is ahead), per
+    benchmark and on the five-benchmark average, from one `fftool reproduce` results.csv."""
+    frame = pd.read_csv(results_csv)
+    frame = frame[frame["benchmark"].isin(BENCHMARKS)].set_index(["variant", "benchmark"])[["min_ade", "min_fde"]]
+    benchmarks = [b for b in BENCHMARKS if b in frame.index.get_level_values("benchmark")]
+    signed = lambda gap: f"{gap['min_ade']:+.3f} / {gap['min_fde']:+.3f}"  # noqa: E731
+    rows = []
+    for variant in (v for v in PREDICTORS if reads_goal(v) and v in frame.index.get_level_values("variant")):
+        gap = frame.loc[variant].loc[benchmarks] - frame.loc["baseline"].loc[benchmarks]
+        ahead = [b for b in benchmarks if (gap.loc[b] < 0).all()]
+        rows.append([PAPER_NAMES[variant], *(signed(gap.loc[b]) for b in benchmarks), f"**{signed(gap.mean())}**",
+                     ", ".join(ahead) or "none"])  # fmt: skip
+    return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
