@@ -28,7 +28,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.config import CVAEConfig, ForcesConfig, GoalConfig, GoalsConfig, load_config
 from fftool.learning import cvae_model, training
 from fftool.learning.features import prepare
-from fftool.learning.training import epoch_seed, generator, lr_factor, optimizer_step
+from fftool.learning.training import epoch_seed, generator, lr_factor, optimizer_step, train_epoch
 from fftool.stages import cvae, goal
 
 from .conftest import make_raw_tree
@@ -111,9 +111,9 @@ def _first_steps(rank: int, port: int, store_root: Path, out: Path) -> None:
     distributed.join("cpu")
     inputs = _inputs(store_root)
     cvae_trainer = cvae._trainer(ONE_STEP, ForcesConfig(), "zara1", inputs["windows"], None, CPU)
-    cvae_row = cvae_trainer.epoch(0, lambda done, total: None, None)
+    cvae_row = train_epoch(cvae_trainer, 0, lambda done, total: None, None)
     goal_trainer = goal._trainer(GOAL, SAMPLING, "zara1", inputs["windows"], inputs["maps"], CPU)
-    goal_row = goal_trainer.epoch(0, lambda done, total: None, None)
+    goal_row = train_epoch(goal_trainer, 0, lambda done, total: None, None)
     if rank == 0:
         torch.save({"cvae": _weights_and_grads(cvae_trainer.model), "cvae_row": cvae_row,
                     "goal": _weights_and_grads(goal_trainer.model), "goal_row": goal_row}, out)  # fmt: skip
@@ -135,7 +135,7 @@ def test_the_first_step_of_two_ranks_is_the_single_process_step_on_their_union(r
 
     # the goal U-Net: today's single-process step on the global batch of 16 windows
     single = goal._trainer(GOAL, SAMPLING, "zara1", inputs["windows"], inputs["maps"], CPU)
-    row = single.epoch(0, lambda done, total: None, None)
+    row = train_epoch(single, 0, lambda done, total: None, None)
     torch.testing.assert_close(ranks["goal"], _weights_and_grads(single.model))
     assert ranks["goal_row"] == pytest.approx(row, rel=1e-5)
 
@@ -152,7 +152,7 @@ def test_the_first_step_of_two_ranks_is_the_single_process_step_on_their_union(r
         prepared = prepare(part, "baseline", reference.obs_len, rotate=ONE_STEP.rotate, generator=gen)
         parts = cvae_model.training_loss(reference.model, prepared, ONE_STEP, None, None, gen)
         total = total + parts.total * len(rows) / len(plan[0])  # the global batch's mean over windows
-    factor = lr_factor(ONE_STEP.schedule, 0, reference.first_steps[-1], ONE_STEP.warmup_fraction)
+    factor = lr_factor(ONE_STEP.schedule, 0, reference.schedule.first_steps[-1], ONE_STEP.warmup_fraction)
     optimizer_step(reference.model, reference.optimizer, total, ONE_STEP.lr * factor, ONE_STEP.grad_clip)
     torch.testing.assert_close(ranks["cvae"], _weights_and_grads(reference.model))
     assert ranks["cvae_row"]["train_loss"] == pytest.approx(total.item(), rel=1e-5)

@@ -105,17 +105,17 @@ def test_dlow_trains_resumes_and_evaluate_draws_through_it(
     # killed during epoch 2, then run again: it resumes from epoch 1's checkpoint to the same weights
     again = ArtifactStore(tmp_path / "again")
     pipeline.run(cfg, again, ["cvae"], benchmark="zara1", runtime=cpu)
-    real_epoch = dlow_stage._Trainer.epoch
+    real_steps = dlow_stage._Trainer.steps
 
-    def killed_in_epoch_2(self, epoch, tick, previous):
+    def killed_in_epoch_2(self, epoch):
         if epoch == 1:
             raise KeyboardInterrupt
-        return real_epoch(self, epoch, tick, previous)
+        return real_steps(self, epoch)
 
-    monkeypatch.setattr(dlow_stage._Trainer, "epoch", killed_in_epoch_2)
+    monkeypatch.setattr(dlow_stage._Trainer, "steps", killed_in_epoch_2)
     with pytest.raises(KeyboardInterrupt):
         pipeline.run(cfg, again, ["dlow"], benchmark="zara1", runtime=cpu)
-    monkeypatch.setattr(dlow_stage._Trainer, "epoch", real_epoch)
+    monkeypatch.setattr(dlow_stage._Trainer, "steps", real_steps)
     resumed = pipeline.run(cfg, again, ["dlow"], benchmark="zara1", runtime=cpu)["dlow"]
     assert resumed.manifest.stats["resumed_from_epoch"] == 1
     resumed_weights = torch.load(resumed.file(DLOW_MODEL_FILE), weights_only=True)["state_dict"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -205,17 +205,15 @@ def _fit(
     model = torch.nn.Sequential(torch.nn.Linear(3, 8), torch.nn.Dropout(0.5), torch.nn.Linear(8, 1))
     optimizer = torch.optim.Adam(model.parameters(), lr=0.01)
 
-    def train_epoch(epoch: int, tick: Callable[[int, int], None], previous: dict | None) -> dict:
+    def steps(epoch: int) -> tuple[int, Iterator[training.Step]]:
         assert model.training
         order = torch.randperm(32, generator=training.generator(training.epoch_seed(7, epoch), torch.device("cpu")))
-        total = 0.0
-        for b in range(4):
-            index = order[b * 8 : (b + 1) * 8]
-            loss = ((model(x[index]) - y[index]) ** 2).mean()
-            training.optimizer_step(model, optimizer, loss, 0.01, 1.0)
-            total += loss.item() / 4
-            tick(b + 1, 4)
-        return {"train_loss": total, "batches_seen": (previous["batches_seen"] if previous else 0) + 4}
+        batches = (order[b * 8 : (b + 1) * 8] for b in range(4))
+        losses = (((model(x[index]) - y[index]) ** 2).mean() for index in batches)
+        return 4, (training.Step(loss, (loss,), seen=8) for loss in losses)
+
+    def columns(epoch: int, sums: dict, seen: int, seconds: float, previous: dict | None) -> dict:
+        return {"train_loss": sums["loss"], "batches_seen": (previous["batches_seen"] if previous else 0) + seen // 8}
 
     def validate() -> dict[str, float]:
         model.eval()
@@ -224,9 +222,11 @@ def _fit(
 
     out = tmp_path / name
     out.mkdir()
+    schedule = training.Schedule(0.01, "constant", tuple(range(0, 4 * epochs + 1, 4)))
     trainer = SimpleNamespace(
-        model=model, optimizer=optimizer, device=torch.device("cpu"), epoch=train_epoch, validate=validate
-    )
+        model=model, optimizer=optimizer, device=torch.device("cpu"), schedule=schedule, grad_clip=1.0,
+        terms=("loss",), steps=steps, columns=columns, validate=validate,
+    )  # fmt: skip
     run = SimpleNamespace(
         dir=out,
         scratch=tmp_path / "scratch",

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -129,6 +129,35 @@ def lr_factor(
     if schedule == "constant":
         return 1.0
     return 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warmup) / max(1, total_steps - warmup))))
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """The learning rate of every optimizer step of a run: `lr` times `lr_factor` of the step's place in the
+    budget. first_steps[e]: the first step of epoch e (0-based); first_steps[-1]: the whole budget."""
+
+    lr: float
+    kind: str
+    first_steps: tuple[int, ...]
+    warmup_fraction: float = 0.0
+    decay_every: int = 1
+    decay_gamma: float = 1.0
+    fix_epochs: int = 0
+
+    def at(self, epoch: int, step: int) -> float:
+        """The rate of step `step` (0-based) of epoch `epoch`."""
+        factor = lr_factor(
+            self.kind,
+            self.first_steps[epoch] + step,
+            self.first_steps[-1],
+            self.warmup_fraction,
+            epoch,
+            self.decay_every,
+            self.decay_gamma,
+            len(self.first_steps) - 1,
+            self.fix_epochs,
+        )
+        return self.lr * factor
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
@@ -296,29 +325,61 @@ class Curves:
         shutil.copytree(self.folder, out_dir / TENSORBOARD_DIR)
 
 
-# One training epoch: (epoch (0-based), tick(done, total) after every batch, the previous epoch's log row or
-# None) -> the epoch's training columns of the log, in order. The row lets a column add up over a resumed run.
-TrainEpoch = Callable[[int, Callable[[int, int], None], dict[str, Any] | None], dict[str, Any]]
-
-
 def _quiet(done: int, total: int) -> None:
     """The tick of a run nobody follows batch by batch."""
 
 
+class Step(NamedTuple):
+    """One optimizer step a trainer asks for."""
+
+    loss: torch.Tensor  # what this process backpropagates (under torchrun: its share of the global batch's)
+    terms: tuple[torch.Tensor, ...]  # the loss terms the log averages, in the order of `Trainer.terms`
+    weight: float = 1.0  # this process's share of the global batch's mean (1 for a single process)
+    seen: int = 0  # agent-windows the step trained on, for throughput columns
+
+
 class Trainer(Protocol):
-    """What a stage trains: its model and optimizer, one training epoch, and its validation metrics."""
+    """What a stage trains: its model, optimizer and schedule, the steps of an epoch, and its validation."""
 
     model: torch.nn.Module
     optimizer: torch.optim.Optimizer
     device: torch.device
+    schedule: Schedule
+    grad_clip: float
+    terms: tuple[str, ...]  # the names of `Step.terms`
 
-    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
-        """Train one epoch; its log columns (`previous` is the last row, for running totals)."""
+    def steps(self, epoch: int) -> tuple[int, Iterator[Step]]:
+        """How many steps epoch `epoch` takes, and the steps, each computed when the loop asks for it."""
+        ...
+
+    def columns(
+        self, epoch: int, sums: dict[str, float], seen: int, seconds: float, previous: dict[str, Any] | None
+    ) -> dict[str, Any]:
+        """The epoch's training columns of the log from its mean loss terms, the agent-windows it saw and its
+        seconds (`previous`: the last row, for running totals over a resumed run)."""
         ...
 
     def validate(self) -> dict[str, float]:
         """Validation metrics after an epoch."""
         ...
+
+
+def train_epoch(
+    trainer: Trainer, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None
+) -> dict[str, Any]:
+    """One epoch: each step at its scheduled rate, its loss terms averaged over the epoch (and the ranks)."""
+    tic = time.perf_counter()
+    count, steps = trainer.steps(epoch)
+    sums, seen = dict.fromkeys(trainer.terms, 0.0), 0
+    for index, step in enumerate(steps):
+        rate = trainer.schedule.at(epoch, index)
+        optimizer_step(trainer.model, trainer.optimizer, step.loss, rate, trainer.grad_clip)
+        for name, value in zip(trainer.terms, step.terms):
+            sums[name] += value.item() * step.weight / count
+        seen += step.seen
+        tick(index + 1, count)
+    sums = distributed.sum_over_ranks(sums, trainer.device)
+    return trainer.columns(epoch, sums, seen, time.perf_counter() - tic, previous)
 
 
 class Run(Protocol):
@@ -334,13 +395,13 @@ def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log
     """Train for `epochs` epochs, validating after each, resuming from the scratch checkpoint; returns the log
     and the best weights (lowest `trainer.validate()[best_by]`).
 
-    The stages differ only in their data, model, loss and metrics, which their `trainer` holds; this loop
-    owns what they share. Each epoch reseeds torch's global generator with `epoch_seed` and ends with a
-    checkpoint of the model, the optimizer and the progress, so a run killed mid-epoch and started again
-    redoes that epoch and ends with the same weights as an uninterrupted run. Log rows are (epoch, seconds,
-    training columns, validation metrics); they go to `run.on_epoch`, TensorBoard (live under `run.scratch`,
-    copied into `run.dir` at the end) and `run.dir / log_name`. `run.on_progress` gets
-    ("epoch e/E", done, total) from each tick of `trainer.epoch`.
+    The stages differ only in their data, model, loss and metrics, which their `trainer` holds (its steps,
+    schedule, log columns and validation); this loop and `train_epoch` own the rest. Each epoch reseeds
+    torch's global generator with `epoch_seed` and ends with a checkpoint of the model, the optimizer and the
+    progress, so a run killed mid-epoch and started again redoes that epoch and ends with the same weights as
+    an uninterrupted run. Log rows are (epoch, seconds, training columns, validation metrics); they go to
+    `run.on_epoch`, TensorBoard (live under `run.scratch`, copied into `run.dir` at the end) and
+    `run.dir / log_name`. `run.on_progress` gets ("epoch e/E", done, total) after each optimizer step.
 
     Under torchrun (`distributed`), rank 0 alone validates (its metrics are broadcast, so every rank keeps
     the same best epoch), writes the checkpoint, curves and log, and reports; every rank resumes from the
@@ -358,7 +419,7 @@ def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log
         # dropout and whatever else draws from the global generator (each rank its own stream)
         torch.manual_seed(distributed.rank_seed(epoch_seed(seed, epoch)))
         tick = partial(on_progress, f"epoch {epoch + 1}/{epochs}") if on_progress else _quiet
-        trained = trainer.epoch(epoch, tick, progress.log[-1] if progress.log else None)
+        trained = train_epoch(trainer, epoch, tick, progress.log[-1] if progress.log else None)
         metrics = distributed.broadcast(trainer.validate() if leader else None)
         row = {"epoch": epoch + 1, "seconds": round(time.perf_counter() - tic, 3), **trained, **metrics}
         progress.record(row, metrics[best_by], model)

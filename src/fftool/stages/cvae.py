@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, Final
@@ -35,12 +35,12 @@ from fftool.learning.cvae_model import Trained, build_model, epoch_plan, trainin
 from fftool.learning.features import prepare, training_inputs
 from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
+    Schedule,
+    Step,
     epoch_seed,
     fit,
     generator,
-    lr_factor,
     make_optimizer,
-    optimizer_step,
     save_checkpoint,
     seed_all,
 )
@@ -58,7 +58,7 @@ def _rows(index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
 
 @dataclass
 class _Trainer:
-    """The CVAE-specific half of `training.fit`: an epoch of batched windows under AgentFormer's loss, with
+    """The CVAE's part of `training.fit`: the steps of an epoch of batched windows under AgentFormer's loss,
     throughput columns, and the validation minADE/minFDE whose minADE picks the best epoch."""
 
     cfg: CVAEConfig
@@ -73,60 +73,62 @@ class _Trainer:
     per_epoch: int  # training windows per epoch
     device: torch.device
     module: goal_errors.ModuleGoals | None = None  # training goals as wrong as the module's; fair validation
-    first_steps: list[int] = field(init=False)  # each epoch's first optimizer step; [-1]: the schedule's budget
+    terms: tuple[str, ...] = ("loss", "recon", "kl", "best_of_k", "kl_unclamped")  # TrainLoss's fields
+    schedule: Schedule = field(init=False)
     net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
 
     def __post_init__(self) -> None:
-        steps = [len(epoch_plan(self.train, self.cfg, epoch, self.per_epoch)[0]) for epoch in range(self.cfg.epochs)]
-        self.first_steps = [0, *itertools.accumulate(steps)]  # the budget is known up front
+        cfg = self.cfg
+        steps = [len(epoch_plan(self.train, cfg, epoch, self.per_epoch)[0]) for epoch in range(cfg.epochs)]
+        first_steps = (0, *itertools.accumulate(steps))  # the budget is known up front
+        self.schedule = Schedule(
+            cfg.lr, cfg.schedule, first_steps, cfg.warmup_fraction, cfg.decay_every, cfg.decay_gamma
+        )  # fmt: skip
         self.net = distributed.wrap(self.model, self.device)
 
-    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
-        """One epoch of the (seed, epoch) plan: throughput (totals carried on from `previous`), the last learning
-        rate and the mean loss terms.
+    @property
+    def grad_clip(self) -> float:
+        return self.cfg.grad_clip
+
+    def steps(self, epoch: int) -> tuple[int, Iterator[Step]]:
+        """The (seed, epoch) plan's steps.
 
         Under torchrun every rank draws the same plan and builds the same global batch (agent caps included),
         then trains on its windows (`distributed.shard`) with its loss scaled so that the averaged gradient is
         the global batch's; rotations and latent samples come from the rank's own generator."""
         cfg, device = self.cfg, self.device
-        tic = time.perf_counter()
         gen = generator(distributed.rank_seed(epoch_seed(cfg.seed, epoch)), device)
         plan, rng = epoch_plan(self.train, cfg, epoch, self.per_epoch)
-        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0, "best_of_k": 0.0, "kl_unclamped": 0.0}
-        agents, weight = 0, 1.0  # weight: this rank's share of the global batch's mean loss
-        for step, members in enumerate(plan):
-            batch = self.train.batch(members, cfg.max_agents, rng)
-            agents += int(batch.agent_mask.sum())
-            if distributed.active():
-                mine, share = distributed.shard(members)
-                batch, weight = batch.map(partial(_rows, torch.as_tensor(mine))), share / distributed.world_size()
-            batch, goal = batch.to(device), None
-            if self.module is not None:  # goals as wrong as the goal module's, forces toward them
-                batch, goal = self.module.move(batch, self.obs_len, gen, self.forces_cfg, self.dt_s, cfg.variant)
-            prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
-            warm = epoch < cfg.best_of_k_warmup_epochs  # fftool's option: the posterior first, then the full loss
-            parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
-            total = parts.total * share if distributed.active() else parts.total
-            factor = lr_factor(
-                cfg.schedule,
-                self.first_steps[epoch] + step,
-                self.first_steps[-1],
-                cfg.warmup_fraction,
-                epoch,
-                cfg.decay_every,
-                cfg.decay_gamma,
-            )
-            optimizer_step(self.model, self.optimizer, total, cfg.lr * factor, cfg.grad_clip)
-            for name, value in zip(sums, parts):
-                sums[name] += value.item() * weight / len(plan)
-            tick(step + 1, len(plan))
-        sums = distributed.sum_over_ranks(sums, device)
-        train_s = time.perf_counter() - tic
-        seen = previous or {"agent_windows_seen": 0, "train_seconds": 0.0}
+        warm = epoch < cfg.best_of_k_warmup_epochs  # fftool's option: the posterior first, then the full loss
+
+        def each() -> Iterator[Step]:
+            for members in plan:
+                batch, share = self.train.batch(members, cfg.max_agents, rng), 1.0
+                seen = int(batch.agent_mask.sum())
+                if distributed.active():
+                    mine, share = distributed.shard(members)
+                    batch = batch.map(partial(_rows, torch.as_tensor(mine)))
+                batch, goal = batch.to(device), None
+                if self.module is not None:  # goals as wrong as the goal module's, forces toward them
+                    batch, goal = self.module.move(batch, self.obs_len, gen, self.forces_cfg, self.dt_s, cfg.variant)
+                prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
+                parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
+                if distributed.active():
+                    yield Step(parts.total * share, tuple(parts), share / distributed.world_size(), seen)
+                else:
+                    yield Step(parts.total, tuple(parts), 1.0, seen)
+
+        return len(plan), each()
+
+    def columns(
+        self, epoch: int, sums: dict[str, float], seen: int, seconds: float, previous: dict[str, Any] | None
+    ) -> dict[str, Any]:
+        """Throughput (totals carried on from `previous`), the last learning rate and the mean loss terms."""
+        before = previous or {"agent_windows_seen": 0, "train_seconds": 0.0}
         return {
-            "train_seconds": round(float(seen["train_seconds"]) + train_s, 3),
-            "agent_windows_seen": int(seen["agent_windows_seen"]) + agents,
-            "agent_windows_per_s": round(agents / train_s, 2),
+            "train_seconds": round(float(before["train_seconds"]) + seconds, 3),
+            "agent_windows_seen": int(before["agent_windows_seen"]) + seen,
+            "agent_windows_per_s": round(seen / seconds, 2),
             "lr": self.optimizer.param_groups[0]["lr"],
             **{f"train_{name}": value for name, value in sums.items()},
         }

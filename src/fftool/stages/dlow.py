@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -31,12 +31,12 @@ from fftool.learning.features import prepare, training_inputs
 from fftool.learning.goal_errors import ModuleGoals, module_goals
 from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
+    Schedule,
+    Step,
     epoch_batches,
     epoch_seed,
     fit,
     generator,
-    lr_factor,
-    optimizer_step,
     save_checkpoint,
     seed_all,
     validation_subset,
@@ -50,8 +50,8 @@ NAME: Final = "dlow"
 
 @dataclass
 class _Trainer:
-    """The DLow half of `training.fit`: epochs of batched windows through the frozen CVAE under DLow's loss,
-    and the validation minADE/minFDE of the K codes, whose minADE picks the best epoch."""
+    """The DLow sampler's part of `training.fit`: the steps of an epoch of batched windows through the frozen
+    CVAE under DLow's loss, and the validation minADE/minFDE of the K codes, whose minADE picks the best epoch."""
 
     cfg: DLowConfig
     chosen: Preset
@@ -65,48 +65,49 @@ class _Trainer:
     per_epoch: int
     device: torch.device
     module: ModuleGoals | None = None  # over a CVAE trained for the goal module's goals: the same goals
-    first_steps: list[int] = field(init=False)
+    terms: tuple[str, ...] = ("loss", "recon", "diverse", "kl", "kl_unclamped")  # DLowLoss's fields
+    schedule: Schedule = field(init=False)
 
     def __post_init__(self) -> None:
-        steps = [len(self._plan(epoch)[0]) for epoch in range(self.cfg.epochs)]
-        self.first_steps = [0, *itertools.accumulate(steps)]
+        cfg = self.cfg
+        steps = [len(self._plan(epoch)[0]) for epoch in range(cfg.epochs)]
+        first_steps = (0, *itertools.accumulate(steps))
+        self.schedule = Schedule(
+            cfg.lr, self.chosen.schedule, first_steps, 0.0, cfg.decay_every, cfg.decay_gamma, cfg.lr_fix_epochs
+        )  # fmt: skip
+
+    @property
+    def grad_clip(self) -> float:
+        return self.cfg.grad_clip
 
     def _plan(self, epoch: int) -> tuple[list[np.ndarray], np.random.Generator]:
         cfg = self.cfg
         return epoch_batches(self.train, cfg.seed, epoch, self.per_epoch, cfg.batch_windows, cfg.max_agent_pairs)
 
-    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
-        cfg, device, variant = self.cfg, self.device, self.trained.config.variant
-        tic = time.perf_counter()
+    def steps(self, epoch: int) -> tuple[int, Iterator[Step]]:
+        cfg, device, variant, trained = self.cfg, self.device, self.trained.config.variant, self.trained
         gen = generator(epoch_seed(cfg.seed, epoch), device)
         plan, _ = self._plan(epoch)
-        sums = {"loss": 0.0, "recon": 0.0, "diverse": 0.0, "kl": 0.0, "kl_unclamped": 0.0}
-        trained = self.trained
-        for step, members in enumerate(plan):
-            batch, goal = self.train.batch(members).to(device), None
-            if self.module is not None:
-                batch, goal = self.module.move(batch, self.obs_len, gen, trained.forces_config, trained.dt_s, variant)
-            prepared = prepare(batch, variant, self.obs_len, goal=goal)
-            parts = training_loss(self.trained, self.model, prepared, cfg, self.chosen, gen)
-            factor = lr_factor(
-                self.chosen.schedule,
-                self.first_steps[epoch] + step,
-                self.first_steps[-1],
-                0.0,
-                epoch,
-                cfg.decay_every,
-                cfg.decay_gamma,
-                cfg.epochs,
-                cfg.lr_fix_epochs,
-            )
-            optimizer_step(self.model, self.optimizer, parts.total, cfg.lr * factor, cfg.grad_clip)
-            for name, value in zip(sums, parts):
-                sums[name] += value.item() / len(plan)
-            tick(step + 1, len(plan))
-        seconds = time.perf_counter() - tic
-        seen = previous or {"train_seconds": 0.0}
+
+        def each() -> Iterator[Step]:
+            for members in plan:
+                batch, goal = self.train.batch(members).to(device), None
+                if self.module is not None:
+                    batch, goal = self.module.move(
+                        batch, self.obs_len, gen, trained.forces_config, trained.dt_s, variant
+                    )
+                prepared = prepare(batch, variant, self.obs_len, goal=goal)
+                parts = training_loss(trained, self.model, prepared, cfg, self.chosen, gen)
+                yield Step(parts.total, tuple(parts))
+
+        return len(plan), each()
+
+    def columns(
+        self, epoch: int, sums: dict[str, float], seen: int, seconds: float, previous: dict[str, Any] | None
+    ) -> dict[str, Any]:
+        before = previous or {"train_seconds": 0.0}
         return {
-            "train_seconds": round(float(seen["train_seconds"]) + seconds, 3),
+            "train_seconds": round(float(before["train_seconds"]) + seconds, 3),
             "lr": self.optimizer.param_groups[0]["lr"],
             **{f"train_{name}": value for name, value in sums.items()},
         }

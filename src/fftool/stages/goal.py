@@ -10,7 +10,7 @@ an interrupted run resumes where it stopped.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -32,12 +32,12 @@ from fftool.learning.goal_model import (
 )
 from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import (
+    Schedule,
+    Step,
     epoch_seed,
     fit,
     generator,
-    lr_factor,
     make_optimizer,
-    optimizer_step,
     save_checkpoint,
     seed_all,
     validation_subset,
@@ -57,8 +57,8 @@ VALIDATION_SAMPLING: Final = tuple(
 
 @dataclass
 class _Trainer:
-    """The goal-specific half of `training.fit`: an epoch of augmented crops and BCE+MSE heatmap loss, and
-    the validation goal-FDE@K that picks the best epoch."""
+    """The goal U-Net's part of `training.fit`: the steps of an epoch of augmented crops under the BCE+MSE
+    heatmap loss, and the validation goal-FDE@K that picks the best epoch."""
 
     cfg: GoalConfig
     goals_cfg: GoalsConfig
@@ -73,54 +73,69 @@ class _Trainer:
     pred_len: int
     per_epoch: int  # training windows per epoch
     device: torch.device
+    terms: tuple[str, ...] = ("loss", "bce", "mse")
+    schedule: Schedule = field(init=False)
     net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
     future_index: list[int] = field(init=False)  # the window rows of the supervised future steps
 
     def __post_init__(self) -> None:
+        cfg = self.cfg
+        first_steps = tuple(epoch * self._batches for epoch in range(cfg.epochs + 1))
+        self.schedule = Schedule(cfg.lr, cfg.schedule, first_steps, cfg.warmup_fraction)
         self.net = distributed.wrap(self.model, self.device)
-        self.future_index = [self.obs_len + step - 1 for step in supervised_steps(self.cfg, self.pred_len)]
+        self.future_index = [self.obs_len + step - 1 for step in supervised_steps(cfg, self.pred_len)]
 
-    def epoch(self, epoch: int, tick: Callable[[int, int], None], previous: dict[str, Any] | None) -> dict[str, Any]:
-        """One epoch over `per_epoch` windows drawn by (seed, epoch); the mean loss terms. (No column adds up
-        over epochs, so `previous` goes unused.)
+    @property
+    def _batches(self) -> int:
+        return -(-self.per_epoch // self.cfg.batch_size)
+
+    @property
+    def grad_clip(self) -> float:
+        return self.cfg.grad_clip
+
+    def steps(self, epoch: int) -> tuple[int, Iterator[Step]]:
+        """`per_epoch` windows drawn by (seed, epoch).
 
         Under torchrun every rank draws the same order and augmentations for the global batch and trains on its
         windows (`distributed.shard`), its loss scaled so that the averaged gradient is the global batch's."""
-        cfg, device = self.cfg, self.device
-        batches = -(-self.per_epoch // cfg.batch_size)
+        cfg, device, batches = self.cfg, self.device, self._batches
         gen = generator(epoch_seed(cfg.seed, epoch), torch.device("cpu"))
         order = torch.randperm(len(self.train_xy), generator=gen)[: self.per_epoch]
-        sums = {"loss": 0.0, "bce": 0.0, "mse": 0.0}
-        share, weight = 1.0, 1.0  # this rank's factor on its mean loss, and its share of the global mean
-        for b in range(batches):
-            index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
-            angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
-            mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
-            reverse = torch.rand(len(index), generator=gen, dtype=torch.float32) < cfg.time_reversal
-            if distributed.active():
-                mine, share = distributed.shard(index.numpy())
-                keep = torch.as_tensor(mine)
-                index, angle, mirror, reverse = index[keep], angle[keep], mirror[keep], reverse[keep]
-                weight = share / distributed.world_size()
-            xy = self.train_xy[index]
-            xy = torch.where(reverse[:, None, None], xy.flip(1), xy).to(device)
-            if not cfg.augment or cfg.align_heading:
-                angle = torch.zeros_like(angle)
-            if not cfg.augment:
-                mirror = torch.zeros_like(mirror)
-            past, scene = xy[:, : self.obs_len], self.train_scene[index].to(device)
-            x, center, R = goal_inputs(past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len)
-            future = xy[:, self.future_index]  # (b, supervised steps, 2), the goal last
-            loss, bce, mse = goal_loss(
-                self.net(x), world_to_cells(future, center, R, cfg.resolution_m, cfg.crop_cells), cfg
-            )
-            factor = lr_factor(cfg.schedule, epoch * batches + b, cfg.epochs * batches, cfg.warmup_fraction)
-            total = loss * share if distributed.active() else loss
-            optimizer_step(self.model, self.optimizer, total, cfg.lr * factor, cfg.grad_clip)
-            for name, value in (("loss", loss), ("bce", bce), ("mse", mse)):
-                sums[name] += value.item() * weight / batches
-            tick(b + 1, batches)
-        sums = distributed.sum_over_ranks(sums, device)
+
+        def each() -> Iterator[Step]:
+            for b in range(batches):
+                index = order[b * cfg.batch_size : (b + 1) * cfg.batch_size]
+                angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
+                mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
+                reverse = torch.rand(len(index), generator=gen, dtype=torch.float32) < cfg.time_reversal
+                share = 1.0  # this rank's factor on its mean loss
+                if distributed.active():
+                    mine, share = distributed.shard(index.numpy())
+                    keep = torch.as_tensor(mine)
+                    index, angle, mirror, reverse = index[keep], angle[keep], mirror[keep], reverse[keep]
+                xy = self.train_xy[index]
+                xy = torch.where(reverse[:, None, None], xy.flip(1), xy).to(device)
+                if not cfg.augment or cfg.align_heading:
+                    angle = torch.zeros_like(angle)
+                if not cfg.augment:
+                    mirror = torch.zeros_like(mirror)
+                past, scene = xy[:, : self.obs_len], self.train_scene[index].to(device)
+                x, center, R = goal_inputs(
+                    past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len
+                )  # fmt: skip
+                future = xy[:, self.future_index]  # (b, supervised steps, 2), the goal last
+                terms = goal_loss(self.net(x), world_to_cells(future, center, R, cfg.resolution_m, cfg.crop_cells), cfg)
+                if distributed.active():
+                    yield Step(terms[0] * share, tuple(terms), share / distributed.world_size())
+                else:
+                    yield Step(terms[0], tuple(terms))
+
+        return batches, each()
+
+    def columns(
+        self, epoch: int, sums: dict[str, float], seen: int, seconds: float, previous: dict[str, Any] | None
+    ) -> dict[str, Any]:
+        """The mean loss terms (none adds up over epochs)."""
         return {"train_loss": sums["loss"], "train_bce": sums["bce"], "train_mse_cells2": sums["mse"]}
 
     def validate(self) -> dict[str, float]:
