@@ -14,12 +14,12 @@ MODULES = {
     ".".join(path.relative_to(PACKAGE).with_suffix("").parts).removesuffix("__init__").rstrip("."): path
     for path in PACKAGE.rglob("*.py")
 }
-LEAVES = {"errors", "ui", "paper", "dataset.scenes", "artifacts.hashing", "science.groups"}
+LEAVES = {"errors", "ui", "paper", "variants", "dataset.scenes", "artifacts.hashing", "science.groups"}
 STAGES = {name for name in MODULES if name.startswith("stages.") and name != "stages.contract"}
 # Modules whose job needs no tensors: importing torch at their top would only slow every command down.
 ENGINE = {"pipeline", "scheduler", "stages.contract"}
 TORCH_FREE = (
-    {"errors", "ui", "paper", "config", "cli", "science.groups"}
+    {"errors", "ui", "paper", "variants", "config", "cli", "science.groups"}
     | ENGINE
     | {name for name in MODULES if name.startswith(("dataset", "artifacts", "reporting.tables", "reporting.summaries"))}
 )
@@ -54,7 +54,8 @@ def _package(name: str) -> str:
 def test_the_layout_is_the_documented_one() -> None:
     assert {_package(name) for name in MODULES} == {
         "",  # fftool/__init__.py
-        "__main__", "errors", "ui", "outputs", "config", "paper", "pipeline", "scheduler", "api", "zoo", "export",
+        "__main__", "errors", "ui", "outputs", "config", "paper", "variants", "pipeline", "scheduler",
+        "api", "online", "zoo", "export", "exported",
         "artifacts", "dataset", "science", "models", "learning", "stages", "reporting", "cli",
     }  # fmt: skip
     assert {
@@ -108,7 +109,8 @@ def test_only_the_top_layers_import_the_cli_or_the_engine() -> None:
             assert not {_package(name) for name in _imports(module)} & {"cli", "pipeline", "scheduler"}, module
 
 
-def test_the_api_needs_no_cli_engine_nor_stage() -> None:
-    # fftool.api is for code that embeds the model: it reads artifacts and samples, never runs the pipeline.
-    packages = {_package(name) for name in _imports("api") if not name.startswith("ext:")}
+@pytest.mark.parametrize("module", ["api", "online", "exported"])
+def test_the_api_needs_no_cli_engine_nor_stage(module: str) -> None:
+    # The API is for code that embeds the model: it reads artifacts and samples, never runs the pipeline.
+    packages = {_package(name) for name in _imports(module) if not name.startswith("ext:")}
     assert not packages & {"cli", "pipeline", "scheduler", "stages", "reporting"}, packages
