@@ -1,11 +1,13 @@
 """Where a run's time went: every artifact's build time from its manifest, per benchmark and stage.
 
     python tools/stage_times.py --root artifacts --benchmarks eth,hotel    # Markdown table on stdout
+    python tools/stage_times.py --root artifacts --benchmarks zara1 --csv times.csv   # and one row per build
 
 Each manifest records `build_seconds` (the stage's own work) and the torch threads it ran on. The table
 sums build seconds times threads per benchmark (the thread-seconds a run costs, `Manifest.thread_seconds`)
 and, with `--jobs N`, gives the wall time a perfect N-way schedule of one-thread jobs would need (the sum
-divided by N, or the longest single build if that is larger).
+divided by N, or the longest single build if that is larger). `--csv` also writes every build: stage,
+benchmark (empty for the shared data stages), wall seconds and threads.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from __future__ import annotations
 import argparse
 from collections import defaultdict
 from pathlib import Path
+
+import pandas as pd
 
 from fftool.artifacts.store import Manifest
 
@@ -31,14 +35,21 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=Path("artifacts"))
     parser.add_argument("--benchmarks", default="eth,hotel,univ,zara1,zara2")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--csv", type=Path, help="also write one row per build here")
     args = parser.parse_args()
     chosen = args.benchmarks.split(",")
     rows: dict[str, dict[str, float]] = defaultdict(dict)
     shared = 0.0
+    builds = []
     for path in sorted(args.root.glob("*/*/manifest.json")):
         manifest = Manifest.from_json(path.read_text())
         seconds = manifest.thread_seconds()
         benchmark = manifest.stats.get("benchmark") or manifest.params.get("benchmark")
+        if benchmark is None or benchmark in chosen:
+            wall = float(manifest.stats.get("build_seconds") or 0.0)
+            threads = round(seconds / wall) if wall else 1
+            builds.append({"stage": _label(manifest), "benchmark": benchmark or "", "seconds": round(wall, 1),
+                           "threads": threads})  # fmt: skip
         if benchmark is None:
             shared += seconds  # tracks, windows, forces, maps: once for every benchmark
         elif benchmark in chosen:
@@ -57,6 +68,8 @@ def main() -> None:
     print(f"\nShared data stages (tracks, windows, forces, maps): {shared / 60:.1f} min, once. "
           f"All chosen benchmarks: {sum(totals) / 60:.1f} thread-minutes, {sum(wall) / 60:.1f} min at {args.jobs} "
           "jobs if each benchmark ran alone.")  # fmt: skip
+    if args.csv:
+        pd.DataFrame(builds).sort_values(["benchmark", "stage"]).to_csv(args.csv, index=False)
 
 
 if __name__ == "__main__":
