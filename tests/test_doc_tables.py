@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from fftool.reporting.doc_tables import gap_table
+from fftool.reporting.doc_tables import gap_table, stage_seconds
 
 
 def test_the_gap_to_agentformer_is_each_variant_minus_the_baseline(tmp_path: Path) -> None:
@@ -22,3 +22,9 @@ def test_the_gap_to_agentformer_is_each_variant_minus_the_baseline(tmp_path: Pat
     table = gap_table(results).splitlines()
     assert table[0] == "| variant − AgentFormer (m) | hotel | zara1 | average | ahead on both |"
     assert table[2:] == ["| ForceFormer-Re | +0.030 / -0.010 | -0.010 / -0.020 | **+0.010 / -0.015** | zara1 |"]
+
+
+def test_stage_seconds_sums_the_named_builds(tmp_path: Path) -> None:
+    times = tmp_path / "times.csv"
+    times.write_text("stage,benchmark,seconds,threads\ntracks,,0.2,2\nwindows,,0.5,2\ncvae dr,zara1,135.1,2\n")
+    assert stage_seconds(times, ingest="tracks+windows", dr="cvae dr") == "ingest 0.7 s, dr 135 s"

@@ -220,3 +220,11 @@ def gap_table(results_csv: Path | str) -> str:
         rows.append([PAPER_NAMES[variant], *(signed(gap.loc[b]) for b in benchmarks), f"**{signed(gap.mean())}**",
                      ", ".join(ahead) or "none"])  # fmt: skip
     return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
+
+
+def stage_seconds(stage_times_csv: Path | str, **stages: str) -> str:
+    """A sentence's "name 85 s, other 30 s": the build times of the named stages (their labels in a `tools/stage_times.py
+    --csv` file; several labels joined by "+" are summed), for a sentence of prose."""
+    seconds = pd.read_csv(stage_times_csv, keep_default_na=False).groupby("stage")["seconds"].sum()
+    totals = {name: sum(seconds[s] for s in label.split("+")) for name, label in stages.items()}
+    return ", ".join(f"{name} {value:.{0 if value >= 10 else 1}f} s" for name, value in totals.items())
