@@ -22,7 +22,7 @@ from fftool.learning.training import save_checkpoint
 from fftool.models.forceformer import Gaussian
 from fftool.stages import cvae
 from fftool.stages.contract import StageContext
-from fftool.variants import SPECS
+from fftool.variants import FORCEFORMER_VARIANTS, SPECS, VARIANTS
 
 TINY = CVAEConfig(
     d_model=16,
@@ -310,3 +310,9 @@ def test_a_tampered_model_file_is_one_integrity_error(tmp_path: Path, tamper: st
     assert message.startswith(f"{path}: not a valid fftool checkpoint, ")
     assert message.endswith("; rebuild it with `fftool train-cvae --force`")
     assert "weights_only" not in message and "\n" not in message
+
+
+def test_the_variant_records_cover_the_variants_and_only_forceformer_reads_a_goal() -> None:
+    assert tuple(SPECS) == VARIANTS
+    assert {variant for variant, spec in SPECS.items() if spec.reads_goal} == set(FORCEFORMER_VARIANTS)
+    assert all(set(spec.sampling_reads) <= set(spec.training_reads) for spec in SPECS.values())

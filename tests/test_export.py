@@ -84,3 +84,26 @@ def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["export", "cvae/0123456789ab", "--out", str(mine)])
     assert result.exit_code == 2 and "not a model fftool exported" in result.output
     assert (mine / "notes.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        ({"variant": "dx"}, "variant 'dx' is none of"),
+        ({"inputs": {"past": {}, "agent_mask": {}}}, r"inputs \['past', 'agent_mask'\], expected .*'speed0'"),
+        ({"forces": {"fov_deg": "wide"}}, "forces.fov_deg: "),
+        ({"k": None} | {"drop": "k"}, r"missing \['k'\]"),
+    ],
+)
+def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict, message: str) -> None:
+    """Before: an unknown variant raised a bare KeyError and a bad forces block pydantic's own error."""
+    from fftool.errors import InputError
+    from fftool.exported import ExportedModel
+
+    manifest = {"format": "ONNX, opset 18", "variant": "dr", "k": 3, "obs_len": 8, "pred_len": 12, "step_s": 0.4}
+    manifest["inputs"] = {name: {} for name in ("past", "agent_mask", "goals", "speed0")}
+    manifest |= {key: value for key, value in edit.items() if key != "drop"}
+    manifest.pop(edit.get("drop", ""), None)
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InputError, match=message):
+        ExportedModel.load(tmp_path)

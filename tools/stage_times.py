@@ -7,7 +7,7 @@ Each manifest records `build_seconds` (the stage's own work) and the torch threa
 sums build seconds times threads per benchmark (the thread-seconds a run costs, `Manifest.thread_seconds`)
 and, with `--jobs N`, gives the wall time a perfect N-way schedule of one-thread jobs would need (the sum
 divided by N, or the longest single build if that is larger). `--csv` also writes every build: stage,
-benchmark (empty for the shared data stages), wall seconds and threads.
+benchmark (empty for the shared data stages), wall seconds, torch threads and ranks.
 """
 
 from __future__ import annotations
@@ -46,10 +46,9 @@ def main() -> None:
         seconds = manifest.thread_seconds()
         benchmark = manifest.stats.get("benchmark") or manifest.params.get("benchmark")
         if benchmark is None or benchmark in chosen:
-            wall = float(manifest.stats.get("build_seconds") or 0.0)
-            threads = round(seconds / wall) if wall else 1
-            builds.append({"stage": _label(manifest), "benchmark": benchmark or "", "seconds": round(wall, 1),
-                           "threads": threads})  # fmt: skip
+            builds.append({"stage": _label(manifest), "benchmark": benchmark or "",
+                           "seconds": round(float(manifest.stats.get("build_seconds") or 0.0), 1),
+                           "threads": manifest.threads(), "ranks": manifest.stats.get("world_size") or 1})  # fmt: skip
         if benchmark is None:
             shared += seconds  # tracks, windows, forces, maps: once for every benchmark
         elif benchmark in chosen:

@@ -11,11 +11,13 @@ from typing import Any
 
 import numpy as np
 import torch
+from pydantic import ValidationError
 
 from fftool.config import ForcesConfig
 from fftool.errors import InputError, UsageError
 from fftool.export import MANIFEST_FILE, ONNX_FILE, input_names, is_export
 from fftool.learning.observed import desired_speed_and_groups
+from fftool.variants import SPECS
 
 
 @dataclass(frozen=True)
@@ -38,16 +40,26 @@ class ExportedModel:
             import onnxruntime
         except ImportError:
             raise UsageError('running an exported model needs onnxruntime: pip install "fftool[onnx]"') from None
-        manifest = json.loads((folder / MANIFEST_FILE).read_text())
+        where = folder / MANIFEST_FILE
+        manifest = json.loads(where.read_text())
         missing = [key for key in ("variant", "k", "obs_len", "pred_len", "step_s", "inputs") if key not in manifest]
-        if missing or list(manifest["inputs"]) != input_names(str(manifest["variant"])):
-            raise InputError(f"{folder / MANIFEST_FILE}: missing {missing or 'the inputs of its variant'}")
+        if missing:
+            raise InputError(f"{where}: missing {missing}")
+        if manifest["variant"] not in SPECS:
+            raise InputError(f"{where}: variant {manifest['variant']!r} is none of {sorted(SPECS)}")
+        expected = input_names(manifest["variant"])
+        if list(manifest["inputs"]) != expected:
+            raise InputError(f"{where}: inputs {list(manifest['inputs'])}, expected {expected} for its variant")
+        try:
+            forces = ForcesConfig.model_validate(manifest["forces"]) if manifest.get("forces") else None
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            raise InputError(f"{where}: forces.{'.'.join(map(str, first['loc']))}: {first['msg']}") from None
         try:
             session = onnxruntime.InferenceSession(str(folder / ONNX_FILE), providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime's own errors: a missing or damaged graph
             raise InputError(f"{folder / ONNX_FILE}: not a graph onnxruntime can load ({exc})") from None
-        forces = manifest.get("forces")
-        return cls(folder, manifest, session, ForcesConfig(**forces) if forces else None)
+        return cls(folder, manifest, session, forces)
 
     @property
     def variant(self) -> str:

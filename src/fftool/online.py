@@ -5,7 +5,8 @@
     result = online.update(time_s, {agent: (x, y)})   # result.futures: (M, K, 12, 2) for result.agents
 
 Each update draws through `fftool.api.draw_futures`, the path `predict_tracks` takes, so a stream gives the
-numbers `fftool predict --at` gives for the same detections and seed.
+numbers `fftool predict --at` gives for the same detections and seed; an `fftool export` folder runs its ONNX
+graph with onnxruntime instead (within 1e-4 m of the torch path).
 """
 
 from __future__ import annotations

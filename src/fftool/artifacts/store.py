@@ -73,15 +73,16 @@ class Manifest:
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, sort_keys=True)
 
-    def thread_seconds(self) -> float:
-        """What its build cost in CPU time: `build_seconds` times the torch threads and ranks it ran on.
+    def threads(self) -> int:
+        """The torch threads its build ran on (per rank): from the stats (trained and evaluated artifacts
+        record them), else from the environment (recorded whenever the building process had imported
+        torch), else 1."""
+        return int(self.stats.get("torch_threads") or self.environment.get("torch_threads") or 1)
 
-        Threads come from the stats (trained and evaluated artifacts record them), else from the
-        environment (recorded whenever the building process had imported torch), else 1.
-        """
-        threads = self.stats.get("torch_threads") or self.environment.get("torch_threads") or 1
+    def thread_seconds(self) -> float:
+        """What its build cost in CPU time: `build_seconds` times the torch threads and ranks it ran on."""
         ranks = self.stats.get("world_size") or 1
-        return float(self.stats.get("build_seconds") or 0.0) * threads * ranks
+        return float(self.stats.get("build_seconds") or 0.0) * self.threads() * ranks
 
     def built_from(self) -> dict[str, str]:
         """The upstream artifacts (kind -> fingerprint) it was built from; raw files are not listed."""

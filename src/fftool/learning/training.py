@@ -374,7 +374,7 @@ def train_epoch(
     for index, step in enumerate(steps):
         rate = trainer.schedule.at(epoch, index)
         optimizer_step(trainer.model, trainer.optimizer, step.loss, rate, trainer.grad_clip)
-        for name, value in zip(trainer.terms, step.terms):
+        for name, value in zip(trainer.terms, step.terms, strict=True):
             sums[name] += value.item() * step.weight / count
         seen += step.seen
         tick(index + 1, count)

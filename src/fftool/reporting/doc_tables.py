@@ -223,8 +223,9 @@ def gap_table(results_csv: Path | str) -> str:
 
 
 def stage_seconds(stage_times_csv: Path | str, **stages: str) -> str:
-    """A sentence's "name 85 s, other 30 s": the build times of the named stages (their labels in a `tools/stage_times.py
-    --csv` file; several labels joined by "+" are summed), for a sentence of prose."""
+    """A sentence's "name 85 s, other 30 s": the build times of the named stages (their labels in a
+    `tools/stage_times.py --csv` file; several labels joined by "+", and a label's builds on several
+    benchmarks, are summed)."""
     seconds = pd.read_csv(stage_times_csv, keep_default_na=False).groupby("stage")["seconds"].sum()
     totals = {name: sum(seconds[s] for s in label.split("+")) for name, label in stages.items()}
     return ", ".join(f"{name} {value:.{0 if value >= 10 else 1}f} s" for name, value in totals.items())

@@ -73,7 +73,7 @@ class _Trainer:
     per_epoch: int  # training windows per epoch
     device: torch.device
     module: goal_errors.ModuleGoals | None = None  # training goals as wrong as the module's; fair validation
-    terms: tuple[str, ...] = ("loss", "recon", "kl", "best_of_k", "kl_unclamped")  # TrainLoss's fields
+    terms: tuple[str, ...] = ("loss", "recon", "kl", "best_of_k", "kl_unclamped")  # LossParts, `total` as "loss"
     schedule: Schedule = field(init=False)
     net: torch.nn.Module = field(init=False)  # the model, in DistributedDataParallel under torchrun
 

@@ -65,7 +65,7 @@ class _Trainer:
     per_epoch: int
     device: torch.device
     module: ModuleGoals | None = None  # over a CVAE trained for the goal module's goals: the same goals
-    terms: tuple[str, ...] = ("loss", "recon", "diverse", "kl", "kl_unclamped")  # DLowLoss's fields
+    terms: tuple[str, ...] = ("loss", "recon", "diverse", "kl", "kl_unclamped")  # DLowLossParts, `total` as "loss"
     schedule: Schedule = field(init=False)
 
     def __post_init__(self) -> None:
