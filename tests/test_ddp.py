@@ -152,7 +152,7 @@ def test_the_first_step_of_two_ranks_is_the_single_process_step_on_their_union(r
         prepared = prepare(part, "baseline", reference.obs_len, rotate=ONE_STEP.rotate, generator=gen)
         parts = cvae_model.training_loss(reference.model, prepared, ONE_STEP, None, None, gen)
         total = total + parts.total * len(rows) / len(plan[0])  # the global batch's mean over windows
-    factor = lr_factor(ONE_STEP.schedule, 0, reference.schedule.first_steps[-1], ONE_STEP.warmup_fraction)
+    factor = lr_factor(ONE_STEP.schedule, 0, sum(reference.schedule.steps_per_epoch), ONE_STEP.warmup_fraction)
     optimizer_step(reference.model, reference.optimizer, total, ONE_STEP.lr * factor, ONE_STEP.grad_clip)
     torch.testing.assert_close(ranks["cvae"], _weights_and_grads(reference.model))
     assert ranks["cvae_row"]["train_loss"] == pytest.approx(total.item(), rel=1e-5)

@@ -222,7 +222,7 @@ def _fit(
 
     out = tmp_path / name
     out.mkdir()
-    schedule = training.Schedule(0.01, "constant", tuple(range(0, 4 * epochs + 1, 4)))
+    schedule = training.Schedule(0.01, "constant", (4,) * epochs)
     trainer = SimpleNamespace(
         model=model, optimizer=optimizer, device=torch.device("cpu"), schedule=schedule, grad_clip=1.0,
         terms=("loss",), steps=steps, columns=columns, validate=validate,
@@ -233,7 +233,7 @@ def _fit(
         on_progress=on_progress,
         on_epoch=None if rows is None else rows.append,
     )
-    progress = fit(trainer, run, epochs=epochs, seed=7, best_by="val_mse", log_name="log.csv")
+    progress = fit(trainer, run, seed=7, best_by="val_mse", log_name="log.csv")
     return progress, model.state_dict()
 
 

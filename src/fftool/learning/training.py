@@ -133,28 +133,32 @@ def lr_factor(
 
 @dataclass(frozen=True)
 class Schedule:
-    """The learning rate of every optimizer step of a run: `lr` times `lr_factor` of the step's place in the
-    budget. first_steps[e]: the first step of epoch e (0-based); first_steps[-1]: the whole budget."""
+    """The run's epochs (the optimizer steps of each, known up front) and the learning rate of every step:
+    `lr` times `lr_factor` of the step's place in the budget."""
 
     lr: float
     kind: str
-    first_steps: tuple[int, ...]
+    steps_per_epoch: tuple[int, ...]
     warmup_fraction: float = 0.0
     decay_every: int = 1
     decay_gamma: float = 1.0
     fix_epochs: int = 0
 
+    @property
+    def epochs(self) -> int:
+        return len(self.steps_per_epoch)
+
     def at(self, epoch: int, step: int) -> float:
         """The rate of step `step` (0-based) of epoch `epoch`."""
         factor = lr_factor(
             self.kind,
-            self.first_steps[epoch] + step,
-            self.first_steps[-1],
+            sum(self.steps_per_epoch[:epoch]) + step,
+            sum(self.steps_per_epoch),
             self.warmup_fraction,
             epoch,
             self.decay_every,
             self.decay_gamma,
-            len(self.first_steps) - 1,
+            self.epochs,
             self.fix_epochs,
         )
         return self.lr * factor
@@ -391,9 +395,9 @@ class Run(Protocol):
     on_epoch: Callable[[dict[str, Any]], None] | None
 
 
-def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log_name: str) -> Progress:
-    """Train for `epochs` epochs, validating after each, resuming from the scratch checkpoint; returns the log
-    and the best weights (lowest `trainer.validate()[best_by]`).
+def fit(trainer: Trainer, run: Run, *, seed: int, best_by: str, log_name: str) -> Progress:
+    """Train for the epochs of `trainer.schedule`, validating after each, resuming from the scratch checkpoint;
+    returns the log and the best weights (lowest `trainer.validate()[best_by]`).
 
     The stages differ only in their data, model, loss and metrics, which their `trainer` holds (its steps,
     schedule, log columns and validation); this loop and `train_epoch` own the rest. Each epoch reseeds
@@ -413,6 +417,7 @@ def fit(trainer: Trainer, run: Run, *, epochs: int, seed: int, best_by: str, log
     checkpoint = scratch / "last.pt"
     progress = _resume_everywhere(checkpoint, trainer.device, stateful)
     curves = Curves(scratch, progress.start_epoch) if leader else None
+    epochs = trainer.schedule.epochs
     for epoch in range(progress.start_epoch, epochs):
         model.train()
         tic = time.perf_counter()

@@ -16,7 +16,6 @@ redoes that epoch and ends with the same weights as an uninterrupted run.
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -79,11 +78,8 @@ class _Trainer:
 
     def __post_init__(self) -> None:
         cfg = self.cfg
-        steps = [len(epoch_plan(self.train, cfg, epoch, self.per_epoch)[0]) for epoch in range(cfg.epochs)]
-        first_steps = (0, *itertools.accumulate(steps))  # the budget is known up front
-        self.schedule = Schedule(
-            cfg.lr, cfg.schedule, first_steps, cfg.warmup_fraction, cfg.decay_every, cfg.decay_gamma
-        )  # fmt: skip
+        steps = tuple(len(epoch_plan(self.train, cfg, epoch, self.per_epoch)[0]) for epoch in range(cfg.epochs))
+        self.schedule = Schedule(cfg.lr, cfg.schedule, steps, cfg.warmup_fraction, cfg.decay_every, cfg.decay_gamma)
         self.net = distributed.wrap(self.model, self.device)
 
     @property
@@ -216,7 +212,7 @@ def train(
     trainer = _trainer(cfg, forces_cfg, benchmark, windows, forces, device, goal_training, goals)
     fair = "_fair" if trainer.module is not None else ""
     started, best_by = time.perf_counter(), f"val{fair}_min_ade@{cfg.k}_m"
-    progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=CVAE_LOG_FILE)
+    progress = fit(trainer, ctx, seed=cfg.seed, best_by=best_by, log_name=CVAE_LOG_FILE)
     save_checkpoint(
         out_dir / CVAE_MODEL_FILE,
         {

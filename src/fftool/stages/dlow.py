@@ -12,7 +12,6 @@ prior (AgentFormer's test-time sampler; docs/cvae.md "DLow").
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -70,10 +69,9 @@ class _Trainer:
 
     def __post_init__(self) -> None:
         cfg = self.cfg
-        steps = [len(self._plan(epoch)[0]) for epoch in range(cfg.epochs)]
-        first_steps = (0, *itertools.accumulate(steps))
+        steps = tuple(len(self._plan(epoch)[0]) for epoch in range(cfg.epochs))
         self.schedule = Schedule(
-            cfg.lr, self.chosen.schedule, first_steps, 0.0, cfg.decay_every, cfg.decay_gamma, cfg.lr_fix_epochs
+            cfg.lr, self.chosen.schedule, steps, 0.0, cfg.decay_every, cfg.decay_gamma, cfg.lr_fix_epochs
         )  # fmt: skip
 
     @property
@@ -175,7 +173,7 @@ def train(
     )  # fmt: skip
     fair = "_fair" if trainer.module is not None else ""
     started, best_by = time.perf_counter(), f"val{fair}_min_ade@{cfg.k}_m"
-    progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=DLOW_LOG_FILE)
+    progress = fit(trainer, ctx, seed=cfg.seed, best_by=best_by, log_name=DLOW_LOG_FILE)
     save_checkpoint(
         ctx.dir / DLOW_MODEL_FILE,
         {

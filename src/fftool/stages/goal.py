@@ -80,8 +80,7 @@ class _Trainer:
 
     def __post_init__(self) -> None:
         cfg = self.cfg
-        first_steps = tuple(epoch * self._batches for epoch in range(cfg.epochs + 1))
-        self.schedule = Schedule(cfg.lr, cfg.schedule, first_steps, cfg.warmup_fraction)
+        self.schedule = Schedule(cfg.lr, cfg.schedule, (self._batches,) * cfg.epochs, cfg.warmup_fraction)
         self.net = distributed.wrap(self.model, self.device)
         self.future_index = [self.obs_len + step - 1 for step in supervised_steps(cfg, self.pred_len)]
 
@@ -202,7 +201,7 @@ def train(
     benchmark, device, out_dir = ctx.need_benchmark(), distributed.device(ctx.device()), ctx.dir
     trainer = _trainer(cfg, goals_cfg, benchmark, windows, maps, device)
     started, best_by = time.perf_counter(), f"val_goal_fde@{goals_cfg.k}_m"
-    progress = fit(trainer, ctx, epochs=cfg.epochs, seed=cfg.seed, best_by=best_by, log_name=GOAL_LOG_FILE)
+    progress = fit(trainer, ctx, seed=cfg.seed, best_by=best_by, log_name=GOAL_LOG_FILE)
     save_checkpoint(
         out_dir / GOAL_MODEL_FILE,
         {
