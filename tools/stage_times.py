@@ -48,7 +48,7 @@ def main() -> None:
         if benchmark is None or benchmark in chosen:
             builds.append({"stage": _label(manifest), "benchmark": benchmark or "",
                            "seconds": round(float(manifest.stats.get("build_seconds") or 0.0), 1),
-                           "threads": manifest.threads(), "ranks": manifest.stats.get("world_size") or 1})  # fmt: skip
+                           "threads": manifest.threads(), "ranks": manifest.ranks()})  # fmt: skip
         if benchmark is None:
             shared += seconds  # tracks, windows, forces, maps: once for every benchmark
         elif benchmark in chosen:

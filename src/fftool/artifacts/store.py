@@ -79,10 +79,13 @@ class Manifest:
         torch), else 1."""
         return int(self.stats.get("torch_threads") or self.environment.get("torch_threads") or 1)
 
+    def ranks(self) -> int:
+        """The processes its build ran on (torchrun's world size; 1 without torchrun)."""
+        return int(self.stats.get("world_size") or 1)
+
     def thread_seconds(self) -> float:
         """What its build cost in CPU time: `build_seconds` times the torch threads and ranks it ran on."""
-        ranks = self.stats.get("world_size") or 1
-        return float(self.stats.get("build_seconds") or 0.0) * self.threads() * ranks
+        return float(self.stats.get("build_seconds") or 0.0) * self.threads() * self.ranks()
 
     def built_from(self) -> dict[str, str]:
         """The upstream artifacts (kind -> fingerprint) it was built from; raw files are not listed."""
