@@ -86,3 +86,50 @@ def test_a_dlow_sampler_over_a_module_trained_cvae_keeps_its_fair_best_epoch(raw
     best = min(stats["log"], key=lambda row: row["val_fair_min_ade@20_m"])
     assert stats["best_epoch"] == best["epoch"] and stats["best_val_fair_min_ade@20_m"] == best["val_fair_min_ade@20_m"]
     assert built["dlow"].manifest.sources["goals"] == built["goals"].fingerprint
+
+
+def test_a_goal_set_keeps_every_goal_where_the_module_put_it_relative_to_the_truth() -> None:
+    """goal_training.source = "fair": k of the K goals of one validation window, each at the same distance
+    ahead of and beside a training walker's true end point as it was from the validation walker's, in any
+    order; an agent of another speed draws another window's set."""
+    val = _straight(0.0, 0.4, 1)
+    offsets = np.array([[2.0, 2.0], [0.3, 0.1], [-1.5, 0.0], [0.0, -0.7]], np.float32)
+    slow = _straight(0.0, 0.05, 1)
+    errors = goal_errors.fit(
+        np.concatenate([val, slow]), np.stack([val[0, -1] + offsets, slow[0, -1] + offsets * 0]), 8, 2, 0.0
+    )
+    train = torch.as_tensor(_straight(90.0, 0.4, 5))[None]  # (1, 5, 20, 2), northbound
+    drawn = errors.draw_sets(train, 8, torch.Generator().manual_seed(0), 3) - train[:, :, -1, None]
+    turned = {(round(-y, 4), round(x, 4)) for x, y in offsets.tolist()}  # east's (ahead, left) seen going north
+    assert drawn.shape == (1, 5, 3, 2)
+    for agent in drawn[0]:
+        got = {(round(x, 4), round(y, 4)) for x, y in agent.tolist()}
+        assert len(got) == 3 and got <= turned
+    slow_train = torch.as_tensor(_straight(0.0, 0.05, 2))[None]
+    assert torch.equal(
+        errors.draw_sets(slow_train, 8, torch.Generator(), 2), slow_train[:, :, -1, None].expand(1, 2, 2, 2)
+    )
+    with pytest.raises(ValueError, match="4 goals, 5 were asked for"):
+        errors.draw_sets(train, 8, torch.Generator(), 5)
+
+
+@pytest.mark.slow
+def test_a_goal_cvae_trains_its_samples_on_goal_sets_and_keeps_its_fair_best_epoch(
+    raw_tree: Path, tmp_path: Path
+) -> None:
+    """goal_training.source = "fair": the best-of-K term decodes the module's goal sets (it is trained: not
+    zero after the warm-up epoch), the best epoch is the fair one, and the model has its own fingerprint."""
+    make_scene(tmp_path / "scenes" / "zara1")
+    profile = tmp_path / "tiny.toml"
+    profile.write_text(TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes")))
+    sets = ["cvae.epochs=2", "cvae.best_of_k_warmup_epochs=1"]
+    fair = predictor_config(load_config(profile, [*sets, 'goal_training.source="fair"']), "goal")
+    module = predictor_config(load_config(profile, [*sets, 'goal_training.source="module"']), "goal")
+    fingerprint = lambda cfg: pipeline.resolve(cfg, ["cvae"], "zara1")[-1].fingerprint  # noqa: E731
+    assert fingerprint(fair) != fingerprint(module)
+    built = pipeline.run(fair, ArtifactStore(tmp_path / "artifacts"), ["cvae"], benchmark="zara1")
+    stats = built["cvae"].manifest.stats
+    log = stats["log"]
+    assert [row["train_best_of_k"] == 0 for row in log] == [True, False]
+    best = min(log, key=lambda row: row["val_fair_min_ade@20_m"])
+    assert stats["best_epoch"] == best["epoch"]

@@ -251,7 +251,10 @@ class GoalTrainingConfig(_Section):
     # validation windows it never trained on (the nearest of its K goals, in the window's heading frame, from
     # windows of a similar speed), so the decoder meets goals as wrong as the best of the K it gets at test;
     # best epoch by validation minADE under the fair protocol (sample k decodes the module's goal k).
-    source: Literal["true", "module"] = "true"
+    # fair: the posterior's reconstruction reads the true goal, and sample k of the best-of-K term decodes goal k
+    # of a goal set the module drew for a validation window of the same speed, moved onto the window's true end
+    # point (the fair protocol in the loss); best epoch under the fair protocol. One process (not torchrun).
+    source: Literal["true", "module", "fair"] = "true"
     true_share: float = Field(0.0, ge=0, le=1)  # module: the share of training agents that keep the true goal
     speed_bins: int = Field(8, gt=0)  # module: errors come from validation windows of the same speed quantile
 

@@ -16,8 +16,9 @@ import torch
 from fftool.artifacts.schema import CVAE_MODEL_FILE
 from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig
-from fftool.learning.batches import SceneSet
+from fftool.learning.batches import SceneBatch, SceneSet
 from fftool.learning.features import Prepared, decoder_features, prepare
+from fftool.learning.protocols import repeat_windows, with_forces
 from fftool.learning.training import epoch_batches, generator, model_file, validation_subset
 from fftool.models.dlow import QNet
 from fftool.models.forceformer import ForceFormer, LossParts, kl_divergence
@@ -127,6 +128,33 @@ def training_loss(
             cfg.kl_min,
             gen,
         )
+
+
+def fair_best_of_k(
+    model: ForceFormer,
+    batch: SceneBatch,
+    goal_sets: torch.Tensor,
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
+    obs_len: int,
+    gen: torch.Generator,
+) -> torch.Tensor:
+    """The best-of-K term under the fair protocol, per window (B,): sample k decodes goal k of goal_sets
+    (B, A, K, 2, world), each window encoded once per goal (as `evaluate` does), one prior draw each; the
+    squared error summed over steps and xy, min over the K per agent, mean over the window's agents.
+
+    Each copy is turned by its own random scene rotation; the errors do not depend on the frame."""
+    B, A, k = goal_sets.shape[:3]
+    copies = repeat_windows(batch, k)
+    goal = goal_sets.transpose(1, 2).reshape(B * k, A, 2)  # window-major, as repeat_windows orders the copies
+    if forces_cfg is not None and dt_s is not None:
+        copies = with_forces(copies, goal, forces_cfg, dt_s, obs_len, SPECS[cfg.variant].training_reads)
+    prepared = prepare(copies, cfg.variant, obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
+    futures = sample(model, prepared, cfg, forces_cfg, dt_s, 1, gen)[:, 0]  # (B·k, A, T, 2)
+    error = ((futures.float() - prepared.future_pos) ** 2).sum((-1, -2)).view(B, k, A)
+    mask = batch.agent_mask
+    return (error.min(1).values * mask).sum(1) / mask.sum(1).clamp_min(1)
 
 
 @torch.no_grad()

@@ -1,15 +1,17 @@
-"""Training goals as wrong as the goal module's (`goal_training.source = "module"`).
+"""Training goals as wrong as the goal module's (`goal_training.source = "module"` or `"fair"`).
 
 A CVAE trained with each window's true end point learns to trust its goal completely, then meets sampled
-goals at test. Here a training goal is the true end point moved by an error the goal module made on a window
-it never trained on: on each validation window, the error of the nearest of its K goals (the goal the best of
-the K fair samples decodes), expressed in that window's heading frame and drawn for a training agent of the
-same speed quantile, then turned to the agent's own heading.
+goals at test. Here a training goal is the true end point moved by errors the goal module made on a window
+it never trained on, expressed in that window's heading frame and drawn for a training agent of the same
+speed quantile, then turned to the agent's own heading: for "module", the error of the nearest of its K
+goals (the goal the best of the K fair samples decodes); for "fair", the errors of all K goals (a whole goal
+set, so that sample k of the best-of-K loss decodes goal k, as the fair protocol does at test).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -53,25 +55,41 @@ def _from_frame(local: Tensor, unit: Tensor) -> Tensor:
 class GoalErrors:
     """The goal module's nearest-goal errors on validation windows, grouped by the windows' speed quantile."""
 
-    local: Tensor  # (M, 2) errors in each window's heading frame, rows sorted by speed bin
+    local: Tensor  # (M, 2) nearest-goal errors in each window's heading frame, rows sorted by speed bin
+    sets: Tensor  # (M, K, 2) every goal's error in the same frame, the same rows
     edges: Tensor  # (bins - 1,) speed quantiles, metres per step
     start: Tensor  # (bins,) first row of each bin
     count: Tensor  # (bins,) rows of each bin (an empty bin draws from all rows)
     true_share: float  # the share of agents that keep their true goal
 
     def to(self, device: torch.device) -> GoalErrors:
-        moved = (self.local, self.edges, self.start, self.count)
+        moved = (self.local, self.sets, self.edges, self.start, self.count)
         return GoalErrors(*(t.to(device) for t in moved), self.true_share)
+
+    def _rows(self, speed: Tensor, gen: torch.Generator) -> Tensor:
+        """(B, A) a validation row of each agent's speed bin, drawn uniformly."""
+        group = torch.bucketize(speed, self.edges)  # (B, A)
+        u = torch.rand(speed.shape, generator=gen, device=speed.device)
+        return self.start[group] + (u * self.count[group]).long().clamp_max(self.count[group] - 1)
 
     def draw(self, xy: Tensor, obs_len: int, gen: torch.Generator) -> Tensor:
         """(B, A, 2) training goals for windows xy (B, A, T, 2): the true end point plus a drawn error."""
         unit, speed = heading(xy, obs_len)
-        group = torch.bucketize(speed, self.edges)  # (B, A)
-        u = torch.rand(speed.shape, generator=gen, device=xy.device)
-        row = self.start[group] + (u * self.count[group]).long().clamp_max(self.count[group] - 1)
-        moved = xy[..., -1, :] + _from_frame(self.local[row], unit)
+        moved = xy[..., -1, :] + _from_frame(self.local[self._rows(speed, gen)], unit)
         keep = torch.rand(speed.shape, generator=gen, device=xy.device) < self.true_share
         return torch.where(keep[..., None], xy[..., -1, :], moved)
+
+    def draw_sets(self, xy: Tensor, obs_len: int, gen: torch.Generator, k: int) -> Tensor:
+        """(B, A, k, 2) goal sets for windows xy (B, A, T, 2): k of the K goals the module drew for one
+        validation window of the agent's speed bin (a random k, in random order), moved onto the agent's true
+        end point and turned to its heading."""
+        unit, speed = heading(xy, obs_len)
+        local = self.sets[self._rows(speed, gen)]  # (B, A, K, 2)
+        if k > local.shape[2]:
+            raise ValueError(f"a goal set holds {local.shape[2]} goals, {k} were asked for")
+        pick = torch.rand(local.shape[:3], generator=gen, device=xy.device).argsort(-1)[..., :k]
+        local = local.gather(2, pick[..., None].expand(-1, -1, -1, 2))
+        return xy[..., -1, None, :] + _from_frame(local, unit[..., None, :])
 
 
 def fit(val_xy: np.ndarray, val_goals: np.ndarray, obs_len: int, bins: int, true_share: float) -> GoalErrors:
@@ -90,7 +108,8 @@ def fit(val_xy: np.ndarray, val_goals: np.ndarray, obs_len: int, bins: int, true
     start = torch.cumsum(count, 0) - count
     empty = count == 0
     start, count = torch.where(empty, 0, start), torch.where(empty, len(xy), count)
-    return GoalErrors(_to_frame(nearest, unit)[order], edges, start, count, float(true_share))
+    sets = _to_frame(error, unit[:, None])
+    return GoalErrors(_to_frame(nearest, unit)[order], sets[order], edges, start, count, float(true_share))
 
 
 @dataclass(frozen=True)
@@ -100,6 +119,7 @@ class ModuleGoals:
 
     errors: GoalErrors
     val_goals: np.ndarray  # (M, K, 2), aligned with the validation scenes' agent-windows
+    source: Literal["module", "fair"]  # goal_training.source: moved training goals, or goal sets for the samples
 
     def move(
         self,
@@ -124,4 +144,5 @@ def module_goals(
     """The goals artifact's validation goals and the errors fitted on them."""
     val_goals = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
     fitted = fit(val.data.xy, val_goals, obs_len, cfg.speed_bins, cfg.true_share)
-    return ModuleGoals(fitted.to(device), val_goals)
+    assert cfg.source != "true", "the paper's choice reads no goal module"
+    return ModuleGoals(fitted.to(device), val_goals, cfg.source)

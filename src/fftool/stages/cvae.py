@@ -28,9 +28,18 @@ import torch
 from fftool.artifacts.schema import COMMANDS, CVAE_LOG_FILE, CVAE_MODEL_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
 from fftool.config import CVAEConfig, ForcesConfig, GoalTrainingConfig, PipelineConfig
+from fftool.errors import FftoolError
 from fftool.learning import distributed, goal_errors
 from fftool.learning.batches import SceneSet, load_scene_set
-from fftool.learning.cvae_model import Trained, build_model, epoch_plan, training_loss, val_windows, validate
+from fftool.learning.cvae_model import (
+    Trained,
+    build_model,
+    epoch_plan,
+    fair_best_of_k,
+    training_loss,
+    val_windows,
+    validate,
+)
 from fftool.learning.features import prepare, training_inputs
 from fftool.learning.sampling import fair_min_ade_fde
 from fftool.learning.training import (
@@ -105,10 +114,19 @@ class _Trainer:
                     mine, share = distributed.shard(members)
                     batch = batch.map(partial(_rows, torch.as_tensor(mine)))
                 batch, goal = batch.to(device), None
-                if self.module is not None:  # goals as wrong as the goal module's, forces toward them
+                fair = self.module is not None and self.module.source == "fair"
+                if self.module is not None and not fair:  # goals as wrong as the goal module's, forces toward them
                     batch, goal = self.module.move(batch, self.obs_len, gen, self.forces_cfg, self.dt_s, cfg.variant)
                 prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
-                parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=not warm)
+                own_samples = not warm and not fair
+                parts = training_loss(self.net, prepared, cfg, self.forces_cfg, self.dt_s, gen, best_of_k=own_samples)
+                if fair and not warm:  # the best-of-K samples decode the module's goal sets, sample k goal k
+                    assert self.module is not None
+                    sets = self.module.errors.draw_sets(batch.xy, self.obs_len, gen, cfg.train_k)
+                    term = fair_best_of_k(self.model, batch, sets, cfg, self.forces_cfg, self.dt_s, self.obs_len, gen)
+                    real = batch.agent_mask.any(1)
+                    sample_term = (term * real).sum() / real.sum().clamp_min(1)
+                    parts = parts._replace(total=parts.total + sample_term, best_of_k=sample_term)
                 if distributed.active():
                     yield Step(parts.total * share, tuple(parts), share / distributed.world_size(), seen)
                 else:
@@ -173,6 +191,8 @@ def _trainer(
     obs_len = int(windows.manifest.stats["obs_len"])
     module = None
     if goals is not None and goal_training is not None:
+        if goal_training.source == "fair" and distributed.active():
+            raise FftoolError('goal_training.source = "fair" trains in one process: run it without torchrun')
         module = goal_errors.module_goals(goals, val, benchmark, obs_len, goal_training, device)
     seed_all(cfg.seed)
     model = build_model(cfg).to(device)
@@ -247,7 +267,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The cvae section, the windows and, for dr and re, the forces arrays the variant trains on."""
     variant = cfg.cvae.variant
-    if reads_goal(variant) and cfg.goal_training.source == "module":  # the goal module's goals and errors
+    if reads_goal(variant) and cfg.goal_training.source != "true":  # the goal module's goals and errors
         artifacts = training_inputs(variant) | {"goals": None}
         return Reads(params=("cvae.*", "goal_training.*"), artifacts=artifacts, command=f" --variant {variant}")
     return Reads(params=("cvae.*",), artifacts=training_inputs(variant), command=f" --variant {variant}")
