@@ -30,7 +30,7 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=Path("artifacts"))
     args = parser.parse_args()
     writer = csv.writer(sys.stdout)
-    writer.writerow(["model", "variant", "benchmark", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
+    writer.writerow(["model", "variant", "benchmark", "best_epoch", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
     store, goals = find_artifact(args.goals, "goals", args.root)
     for ref in args.models:
         dlow = find_artifact(ref, "dlow", args.root)[1] if str(ref).startswith("dlow/") else None
@@ -41,7 +41,8 @@ def main() -> None:
         found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"))
         stats = cvae.manifest.stats
         numbers = [f"{found['min_ade_m']:.4f}", f"{found['min_fde_m']:.4f}"]
-        writer.writerow([(dlow or cvae).id, stats["variant"], stats["benchmark"], found["windows"], *numbers])
+        best = (dlow or cvae).manifest.stats["best_epoch"]
+        writer.writerow([(dlow or cvae).id, stats["variant"], stats["benchmark"], best, found["windows"], *numbers])
 
 
 if __name__ == "__main__":
