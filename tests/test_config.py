@@ -73,6 +73,7 @@ def test_ranges_are_checked_with_the_key_and_the_bound(override: str, expected: 
         (["goal.crop_cells=20"], "goal.crop_cells: expected a multiple of 16 (2 ** (len(widths) - 1)) (got 20)"),
         (["goal.crop_cells=16", "goal.widths=[4, 8, 8]", "goal.heatmap_sigma_cells=7"], "goal.heatmap_sigma_cells: "),
         (["report.seeds=[0, 0]"], "report.seeds: expected distinct seeds (got [0, 0])"),
+        (['cvae.output="goal_residual"'], "cvae.output: expected 'offset' or 'cv_residual' for the baseline, which"),
     ],
 )
 def test_cross_field_checks_name_the_key_and_what_was_expected(overrides: list[str], expected: str) -> None:

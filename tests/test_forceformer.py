@@ -242,14 +242,18 @@ def test_sharing_the_context_between_samples_equals_repeating_it() -> None:
 
 
 def test_output_types_read_the_head_as_documented() -> None:
-    """A constant head shows what each output type adds it to: the last position, or constant velocity."""
+    """A constant head shows what each output type adds it to: the last position, constant velocity, or the
+    constant-acceleration curve that leaves with the last step and reaches the goal at step 12."""
     g = torch.Generator().manual_seed(3)
     past, mask = torch.randn(1, 2, 8, 4, generator=g), torch.ones(1, 2, dtype=torch.bool)
     z, last, step = torch.randn(1, 2, 8, generator=g), past[:, :, -1, :2], torch.tensor([[[0.1, 0.2], [-0.3, 0.0]]])
+    goal = last + torch.tensor([[[3.0, 2.4], [-3.6, 1.44]]])  # agent 0: 1.8 m past constant velocity's end, 0 across
     steps = torch.arange(1, 13, dtype=torch.float32)[None, None, :, None]
+    acceleration = torch.tensor([[[1.8 / 144, 0.0], [0.0, 0.01]]])  # (goal - last - 12 step) / 12², by hand
     expected = {
         "offset": last[:, :, None] + 0.5,
         "cv_residual": last[:, :, None] + steps * step[:, :, None] + 0.5,
+        "goal_residual": last[:, :, None] + steps * step[:, :, None] + steps**2 * acceleration[:, :, None] + 0.5,
     }
     for output, positions in expected.items():
         torch.manual_seed(0)
@@ -257,8 +261,9 @@ def test_output_types_read_the_head_as_documented() -> None:
         torch.nn.init.zeros_(model.out.weight)
         torch.nn.init.constant_(model.out.bias, 0.5)
         context, _ = model.encode_past(past, mask)
-        out = model.decode(z, last, context, mask, 12, _newest_position, last_step=step)
+        out = model.decode(z, last, context, mask, 12, _newest_position, last_step=step, goal=goal)
         torch.testing.assert_close(out, positions.expand_as(out), msg=output)
+    torch.testing.assert_close(out[:, :, -1], goal + 0.5)  # goal_residual's curve ends at the goal
 
 
 def test_the_output_head_init_is_a_parameter() -> None:

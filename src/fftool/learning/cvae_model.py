@@ -70,7 +70,7 @@ def sample(
         where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
         features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
         if sampler is None:
-            return model.sample(model.prior(agent_context), tokens, *where, features, k, generator_)
+            return model.sample(model.prior(agent_context), tokens, *where, features, k, generator_, goal=prepared.goal)
         z = sampler(agent_context).b  # (B, A, K', Z)
         if pick is not None:
             z = z[torch.arange(len(z), device=z.device), :, pick][:, None]  # (B, 1, A, Z)
@@ -78,7 +78,7 @@ def sample(
             raise ValueError(f"the DLow sampler draws {z.shape[2]} futures per agent, {k} were asked for")
         else:
             z = z.transpose(1, 2)  # (B, K, A, Z)
-        return model.decode_k(z.reshape(-1, *z.shape[2:]), tokens, *where, features, k)
+        return model.decode_k(z.reshape(-1, *z.shape[2:]), tokens, *where, features, k, goal=prepared.goal)
 
 
 def most_likely(
@@ -91,7 +91,7 @@ def most_likely(
         steps = prepared.future_pos.shape[2]
         where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
         features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=1)
-        return model.decode_k(model.prior(agent_context).mu, tokens, *where, features, 1)
+        return model.decode_k(model.prior(agent_context).mu, tokens, *where, features, 1, goal=prepared.goal)
 
 
 def epoch_plan(
@@ -127,6 +127,7 @@ def training_loss(
             cfg.train_k if best_of_k else 0,
             cfg.kl_min,
             gen,
+            goal=prepared.goal,
         )
 
 
@@ -214,7 +215,7 @@ def validate(
             q, p = model.posterior(prepared.future, tokens, mask), model.prior(agent_context)
             last, last_step = prepared.past_pos[:, :, -1], prepared.last_step
             decode = partial(model.decode, last_pos=last, context=tokens, agent_mask=mask, steps=steps,
-                             features=features, last_step=last_step)  # fmt: skip
+                             features=features, last_step=last_step, goal=prepared.goal)  # fmt: skip
             mean_q = decode(q.mu)[:, None]  # (B, 1, A, T, 2)
             unit = torch.randn(p.mu.shape, generator=unit_gen, device=device)
             moved = (decode(p.mu + unit / unit.norm(dim=-1, keepdim=True)) - decode(p.mu))[:, :, -1].norm(dim=-1)

@@ -78,6 +78,7 @@ def training_loss(
             steps,
             features,
             k,
+            goal=prepared.goal,
         )
     scale = chosen.traj_scale
     return dlow_loss(

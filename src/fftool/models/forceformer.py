@@ -299,11 +299,30 @@ def kl_divergence(q: Gaussian, p: Gaussian) -> Tensor:
 StepFeatures = Callable[[Tensor, int], Tensor]
 """(positions so far (B, A, s, 2) incl. the last observed, step index s - 1) -> decoder features (B, A, F)."""
 
-OutputType = Literal["offset", "cv_residual"]
+OutputType = Literal["offset", "cv_residual", "goal_residual"]
 """What the decoder's 2-vector at step s means (docs/cvae.md, "Output parametrisation"):
 offset: position - last observed position (AgentFormer's sn_out_type 'norm', its zara1 default);
-cv_residual: position - the constant-velocity extrapolation of the last observed step (fftool's option).
+cv_residual: position - the constant-velocity extrapolation of the last observed step (fftool's option);
+goal_residual: position - the constant-acceleration curve that leaves the last observed position with the last
+observed step and reaches the goal at the last predicted step (fftool's option, for variants that read a goal).
 """
+
+
+def output_base(
+    output: str, step: int, steps: int, last_pos: Tensor, last_step: Tensor | None, goal: Tensor | None
+) -> Tensor | None:
+    """The path the output at step `step` (0-based, of `steps`) is a residual over, as an offset from the last
+    observed position (B, A, 2); None for "offset". last_step: the last observed displacement; goal: the
+    goal in the same frame (both (B, A, 2))."""
+    if output == "offset":
+        return None
+    assert last_step is not None, f"output {output!r} needs the last observed step"
+    ahead = step + 1
+    if output == "cv_residual":
+        return ahead * last_step
+    assert goal is not None, "output 'goal_residual' needs the goal"
+    acceleration = (goal - last_pos - steps * last_step) / steps**2
+    return ahead * last_step + ahead**2 * acceleration
 
 
 class ForceFormer(nn.Module):
@@ -378,6 +397,7 @@ class ForceFormer(nn.Module):
         k: int,
         kl_min: float,
         generator: torch.Generator | None = None,
+        goal: Tensor | None = None,
     ) -> LossParts:
         """AgentFormer's training loss terms for one batch (so DistributedDataParallel wraps the model itself).
 
@@ -385,19 +405,23 @@ class ForceFormer(nn.Module):
         predict; last_pos, last_step: (B, A, 2) the last observed position and displacement; features and
         features_k: the decoder's step features for one and for `k` samples per window (`decode`). k = 0 leaves
         the best-of-K term out (a warm-up on the posterior's reconstruction and the KL alone). The posterior draw
-        comes first, then the k prior draws, from `generator`.
+        comes first, then the k prior draws, from `generator`. goal (B, A, 2): for output "goal_residual".
         """
         tokens, agent_context = self.encode_past(past, agent_mask)
         q = self.posterior(future, tokens, agent_mask)
         p = self.prior(agent_context)
         steps = target.shape[2]
-        recon = self.decode(q.sample(generator), last_pos, tokens, agent_mask, steps, features, last_step=last_step)
+        recon = self.decode(
+            q.sample(generator), last_pos, tokens, agent_mask, steps, features, last_step=last_step, goal=goal
+        )
         # The prior is applied once more for the samples: the same values, and the gradients then add up in the
         # order fftool's first trainings used, so their weights repeat bit for bit.
         samples = None
         if k:
             prior = self.prior(agent_context)
-            samples = self.sample(prior, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator)
+            samples = self.sample(
+                prior, tokens, agent_mask, last_pos, last_step, steps, features_k, k, generator, goal=goal
+            )
         return cvae_loss(recon, target, q, p, samples, agent_mask, kl_min)
 
     def sample(
@@ -411,11 +435,12 @@ class ForceFormer(nn.Module):
         features_k: StepFeatures,
         k: int,
         generator: torch.Generator | None = None,
+        goal: Tensor | None = None,
     ) -> Tensor:
         """k futures per agent drawn from `prior`: (B, k, A, steps, 2), the context shared by the k samples."""
         rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
         z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator)
-        return self.decode_k(z, context, agent_mask, last_pos, last_step, steps, features_k, k)
+        return self.decode_k(z, context, agent_mask, last_pos, last_step, steps, features_k, k, goal=goal)
 
     def decode_k(
         self,
@@ -427,12 +452,22 @@ class ForceFormer(nn.Module):
         steps: int,
         features_k: StepFeatures,
         k: int,
+        goal: Tensor | None = None,
     ) -> Tensor:
-        """The futures (B, k, A, steps, 2) of the codes z (B·k, A, Z), window-major (repeat_interleave order)."""
+        """The futures (B, k, A, steps, 2) of the codes z (B·k, A, Z), window-major (repeat_interleave order);
+        goal (B, A, 2) shared by a window's k samples."""
         B, A, _ = last_pos.shape
         rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
         out = self.decode(
-            z, rep(last_pos), context, rep(agent_mask), steps, features_k, repeat=k, last_step=rep(last_step)
+            z,
+            rep(last_pos),
+            context,
+            rep(agent_mask),
+            steps,
+            features_k,
+            repeat=k,
+            last_step=rep(last_step),
+            goal=None if goal is None else rep(goal),
         )
         return out.view(B, k, A, steps, 2)
 
@@ -448,9 +483,11 @@ class ForceFormer(nn.Module):
         features: StepFeatures,
         repeat: int = 1,
         last_step: Tensor | None = None,
+        goal: Tensor | None = None,
     ) -> Tensor:
         """Autoregressive rollout: (B, A, steps, 2) positions, read from the output head as `self.output`
-        says (last_step (B, A, 2), the last observed displacement, is needed for "cv_residual").
+        says (`output_base`: last_step (B, A, 2), the last observed displacement, is needed for "cv_residual"
+        and "goal_residual", goal (B, A, 2) for "goal_residual").
 
         At step s the decoder reads every earlier step of every agent (and the same step of others) plus
         the whole context; its own outputs are fed back detached, through `features`, which also lets
@@ -473,8 +510,6 @@ class ForceFormer(nn.Module):
         own_token = torch.eye(A, dtype=torch.bool, device=agent_mask.device)[None, :, None, :]  # (1, A, 1, A)
         allowed_all = (agent_mask[:, None, None, :] | own_token).expand(B, A, steps, A).reshape(B, A, steps * A)
         positions = last_pos[:, :, None]  # (B, A, 1, 2)
-        if self.output == "cv_residual":
-            assert last_step is not None, "output 'cv_residual' needs the last observed step"
         outputs = []
         for step in range(steps):
             tokens = torch.cat([features(positions, step), z], -1)[:, :, None]  # (B, A, 1, F + Z)
@@ -485,8 +520,9 @@ class ForceFormer(nn.Module):
                 self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
             delta = self.out(x).float()  # (B, A, 2)
-            if self.output == "cv_residual":
-                delta = delta + (step + 1) * last_step
+            base = output_base(self.output, step, steps, last_pos, last_step, goal)
+            if base is not None:
+                delta = delta + base
             outputs.append(last_pos + delta)
             positions = torch.cat([positions, outputs[-1].detach()[:, :, None]], 2)
         return torch.stack(outputs, 2)
