@@ -114,19 +114,22 @@ def test_a_goal_set_keeps_every_goal_where_the_module_put_it_relative_to_the_tru
 
 
 @pytest.mark.slow
-def test_a_goal_cvae_trains_its_samples_on_goal_sets_and_keeps_its_fair_best_epoch(
-    raw_tree: Path, tmp_path: Path
+@pytest.mark.parametrize("choice", ['goal_training.source="fair"', "goal_training.fair_best_epoch=true"])
+def test_a_goal_cvae_trained_for_the_fair_protocol_keeps_its_fair_best_epoch(
+    choice: str, raw_tree: Path, tmp_path: Path
 ) -> None:
     """goal_training.source = "fair": the best-of-K term decodes the module's goal sets (it is trained: not
-    zero after the warm-up epoch), the best epoch is the fair one, and the model has its own fingerprint."""
+    zero after the warm-up epoch); fair_best_epoch: true goals. Either way the best epoch is the fair one and
+    the model has its own fingerprint, other than the paper's and the module-goal model's."""
     make_scene(tmp_path / "scenes" / "zara1")
     profile = tmp_path / "tiny.toml"
     profile.write_text(TINY_PIPELINE.format(raw=str(raw_tree), scenes=str(tmp_path / "scenes")))
     sets = ["cvae.epochs=2", "cvae.best_of_k_warmup_epochs=1"]
-    fair = predictor_config(load_config(profile, [*sets, 'goal_training.source="fair"']), "goal")
+    fair = predictor_config(load_config(profile, [*sets, choice]), "goal")
     module = predictor_config(load_config(profile, [*sets, 'goal_training.source="module"']), "goal")
+    paper = predictor_config(load_config(profile, sets), "goal")
     fingerprint = lambda cfg: pipeline.resolve(cfg, ["cvae"], "zara1")[-1].fingerprint  # noqa: E731
-    assert fingerprint(fair) != fingerprint(module)
+    assert len({fingerprint(fair), fingerprint(module), fingerprint(paper)}) == 3
     built = pipeline.run(fair, ArtifactStore(tmp_path / "artifacts"), ["cvae"], benchmark="zara1")
     stats = built["cvae"].manifest.stats
     log = stats["log"]

@@ -243,8 +243,12 @@ class GoalsConfig(_ConstantVelocity):
 
 class GoalTrainingConfig(_Section):
     """Where the goal-reading CVAEs (goal, dr, re) get their goals in training, and how their best epoch is
-    chosen (stage `cvae`, which reads this section only for those variants and only when `source` is not the
-    paper's, so the paper's models keep their fingerprints)."""
+    chosen (stage `cvae`, which reads this section only for those variants and only when it departs from the
+    paper's choice, so the paper's models keep their fingerprints)."""
+
+    def reads_module(self) -> bool:
+        """Whether training reads the goal module's goals (to train with them, or to choose the best epoch)."""
+        return self.source != "true" or self.fair_best_epoch
 
     # true: each window's true end point; best epoch by validation minADE with true goals (the paper's choice).
     # module: the true end point moved by one of the goal module's own errors, drawn from its errors on the
@@ -255,6 +259,8 @@ class GoalTrainingConfig(_Section):
     # of a goal set the module drew for a validation window of the same speed, moved onto the window's true end
     # point (the fair protocol in the loss); best epoch under the fair protocol. One process (not torchrun).
     source: Literal["true", "module", "fair"] = "true"
+    # source "true": choose the best epoch under the fair protocol too (the other sources always do).
+    fair_best_epoch: bool = False
     true_share: float = Field(0.0, ge=0, le=1)  # module: the share of training agents that keep the true goal
     speed_bins: int = Field(8, gt=0)  # module: errors come from validation windows of the same speed quantile
 

@@ -115,7 +115,7 @@ class _Trainer:
                     batch = batch.map(partial(_rows, torch.as_tensor(mine)))
                 batch, goal = batch.to(device), None
                 fair = self.module is not None and self.module.source == "fair"
-                if self.module is not None and not fair:  # goals as wrong as the goal module's, forces toward them
+                if self.module is not None and self.module.source == "module":  # goals as wrong as the module's
                     batch, goal = self.module.move(batch, self.obs_len, gen, self.forces_cfg, self.dt_s, cfg.variant)
                 prepared = prepare(batch, cfg.variant, self.obs_len, goal=goal, rotate=cfg.rotate, generator=gen)
                 own_samples = not warm and not fair
@@ -267,7 +267,7 @@ def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext
 def declare(cfg: PipelineConfig) -> Reads:
     """The cvae section, the windows and, for dr and re, the forces arrays the variant trains on."""
     variant = cfg.cvae.variant
-    if reads_goal(variant) and cfg.goal_training.source != "true":  # the goal module's goals and errors
+    if reads_goal(variant) and cfg.goal_training.reads_module():  # the goal module's goals and errors
         artifacts = training_inputs(variant) | {"goals": None}
         return Reads(params=("cvae.*", "goal_training.*"), artifacts=artifacts, command=f" --variant {variant}")
     return Reads(params=("cvae.*",), artifacts=training_inputs(variant), command=f" --variant {variant}")

@@ -209,7 +209,7 @@ def declare(cfg: PipelineConfig) -> Reads:
     variant = cfg.cvae.variant
     params = tuple(f"dlow.{key}" for key in DLowConfig.model_fields if key != "variants")  # evaluations read it
     artifacts = training_inputs(variant) | {"cvae": None}
-    if reads_goal(variant) and cfg.goal_training.source != "true":  # as its CVAE: the module's goals and errors
+    if reads_goal(variant) and cfg.goal_training.reads_module():  # as its CVAE: the module's goals and errors
         params, artifacts = (*params, "goal_training.*"), artifacts | {"goals": None}
     return Reads(params=params, artifacts=artifacts, command=f" --variant {variant}")
 
