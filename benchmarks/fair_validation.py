@@ -28,6 +28,9 @@ def main() -> None:
     parser.add_argument("models", nargs="+", help="CVAE or DLow artifact ids (cvae/<id>, dlow/<id>)")
     parser.add_argument("--goals", required=True, help="the goals artifact (goals/<id>) of the same benchmark")
     parser.add_argument("--root", type=Path, default=Path("artifacts"))
+    parser.add_argument(
+        "--code", choices=("prior", "mean"), default="prior", help="evaluate.fair_code: the code each goal decodes with"
+    )
     args = parser.parse_args()
     writer = csv.writer(sys.stdout)
     writer.writerow(["model", "variant", "benchmark", "best_epoch", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
@@ -38,7 +41,7 @@ def main() -> None:
         cvae = found_cvae if dlow else find_artifact(ref, "cvae", args.root)[1]
         if cvae is None:
             sys.exit(f"{ref}: the CVAE it samples from is not in {args.root}")
-        found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"))
+        found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"), args.code)
         stats = cvae.manifest.stats
         numbers = [f"{found['min_ade_m']:.4f}", f"{found['min_fde_m']:.4f}"]
         best = (dlow or cvae).manifest.stats["best_epoch"]

@@ -34,13 +34,25 @@ CELLS += [(f"evaluate[{p},{protocol}]", p, protocol, "evaluate")
 CELLS += [("dlow[baseline]", "baseline", "paper", "dlow"), ("dlow[re]", "re", "paper", "dlow"),
           ("evaluate[baseline+dlow,paper]", "baseline+dlow", "paper", "evaluate"),
           ("evaluate[dr+dlow,paper]", "dr+dlow", "paper", "evaluate")]  # fmt: skip
+# The fair protocol: each goal decoded from a prior draw or the DLow sampler's code (evaluate.fair_code "prior").
+CELLS += [
+    ("evaluate[goal,fair]", "goal", "fair", "evaluate"),
+    ("evaluate[dr+dlow,fair]", "dr+dlow", "fair", "evaluate"),
+]
 # Goal variants trained with the goal module's errors ("+module": goal_training.source = "module").
 CELLS += [("cvae[goal+module]", "goal+module", "paper", "cvae"), ("cvae[dr+module]", "dr+module", "paper", "cvae"),
           ("cvae[re+module]", "re+module", "paper", "cvae")]  # fmt: skip
 # Fields that choose a cell rather than configure one (the variant, the predictor, the protocol, where goal
-# variants' training goals come from); the paths
+# variants' training goals come from and whether their best epoch is the fair one); the paths
 # that say where raw files lie (Reads.locations) are left out as the declarations say.
-SELECTORS = {"cvae.variant", "evaluate.predictor", "evaluate.protocol", "dlow.variants", "goal_training.source"}
+SELECTORS = {
+    "cvae.variant",
+    "evaluate.predictor",
+    "evaluate.protocol",
+    "dlow.variants",
+    "goal_training.source",
+    "goal_training.fair_best_epoch",
+}
 
 
 def _perturbed(section: BaseModel, name: str) -> Any:

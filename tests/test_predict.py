@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -423,3 +424,20 @@ def test_generated_track_files_and_options_give_a_forecast_or_one_error_line(
         assert not out.exists()
 
     check()
+
+
+def test_with_the_mean_code_each_goal_is_its_most_likely_future(tiny_cvaes: dict[str, object], tmp_path: Path) -> None:
+    """evaluate.fair_code = "mean": with K goals per agent, sample k is the most-likely future toward goal k
+    (the same for every seed); with prior draws the seed moves the samples."""
+    root, dr = tiny_cvaes["root"], tiny_cvaes["dr"]
+    drawn = load(dr, root=root)
+    mean = dataclasses.replace(drawn, fair_code="mean")
+    past = read_tracks(_walkers(tmp_path / "t.csv"))[["x", "y"]].to_numpy().reshape(1, 2, 10, 2)[:, :, -8:]
+    mask = np.ones((1, 2), bool)
+    goals = past[:, :, -1, None] + np.array([[3.0, 0.0], [2.0, 1.5], [-1.0, 2.5]], np.float32)  # (1, 2, 3, 2)
+    futures = mean.predict(past, mask, k=3, goals=goals, seed=0)
+    assert np.array_equal(futures, mean.predict(past, mask, k=3, goals=goals, seed=1))
+    for k in range(3):
+        toward = mean.most_likely(past, mask, goals=goals[:, :, k])
+        np.testing.assert_allclose(futures[:, k], toward, atol=1e-5)
+    assert not np.allclose(drawn.predict(past, mask, k=3, goals=goals, seed=0), futures, atol=1e-4)

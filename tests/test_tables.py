@@ -84,7 +84,12 @@ def test_the_paired_table_subtracts_replicates_of_the_same_resamples() -> None:
 
 
 def test_rows_say_how_a_cvae_drew_its_samples() -> None:
-    """With a DLow sampler in the grid, each CVAE row names its sampler; without one, the names are the paper's."""
-    grid = tables.Grid({}, 0.95, frozenset({"baseline"}))
+    """With a DLow sampler or the mean code in the grid, each CVAE row names its codes; with prior draws alone,
+    the names are the paper's."""
+    grid = tables.Grid({}, 0.95, {"baseline": "dlow", "re": "mean", "goal": "prior"})
     assert grid.method("baseline") == "AgentFormer (DLow)" and grid.method("dr") == "ForceFormer-Dr (CVAE samples)"
+    assert (
+        grid.method("re") == "ForceFormer-Re (mean code)" and grid.method("goal") == "ForceFormer-Goal (CVAE samples)"
+    )
     assert grid.method("cv") == "constant velocity" and tables.Grid({}, 0.95).method("baseline") == "AgentFormer"
+    assert tables.Grid({}, 0.95, {"baseline": "prior", "dr": "prior"}).method("dr") == "ForceFormer-Dr"

@@ -23,7 +23,7 @@ import torch
 
 from fftool import zoo
 from fftool.artifacts.store import Artifact, ArtifactStore, check_schema
-from fftool.config import EvaluateConfig, GoalConfig, GoalsConfig
+from fftool.config import EvaluateConfig, FairCode, GoalConfig, GoalsConfig
 from fftool.dataset.scenes import PRED_LEN
 from fftool.dataset.steps import ObservedWindows, observed_windows, prediction_steps, to_steps
 from fftool.errors import FftoolError, InputError, UsageError
@@ -52,13 +52,15 @@ def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> tuple
 
 def _cvae_and_sampler(
     ref: str | Path, root: Path | None, dlow: str | Path | None
-) -> tuple[ArtifactStore, Artifact, Artifact | None]:
+) -> tuple[ArtifactStore, Artifact, Artifact | None, FairCode]:
     """The CVAE artifact `ref` names, its store, and the DLow sampler to draw through: `dlow` when given, else,
     for a shipped model's name, the one its profile evaluates it with, or `ref` itself when it names a DLow
-    sampler (its CVAE comes with it, from the same store)."""
+    sampler (its CVAE comes with it, from the same store); with the code a goal decodes with under the fair
+    protocol (a shipped model's profile's, else the prior's draws)."""
+    fair_code: FairCode = "prior"
     if zoo.is_name(ref):
         bundle = zoo.find(str(ref))
-        store, cvae, sampler = bundle.store, bundle.cvae, bundle.dlow
+        store, cvae, sampler, fair_code = bundle.store, bundle.cvae, bundle.dlow, bundle.fair_code
     elif dlow is None and ArtifactStore.open(ref, root)[1].kind == "dlow":
         store, sampler = find_artifact(ref, "dlow", root)
         found = store.lookup("cvae", sampler.manifest.sources.get("cvae", ""))
@@ -73,7 +75,7 @@ def _cvae_and_sampler(
         _, sampler = find_artifact(dlow, "dlow", root)
     if sampler is not None and sampler.manifest.sources.get("cvae") != cvae.fingerprint:
         raise UsageError(f"{dlow}: a DLow sampler trained over another CVAE than {cvae.id}")
-    return store, cvae, sampler
+    return store, cvae, sampler, fair_code
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,13 @@ class Model:
     sampler: QNet | None = None  # a DLow sampler of this CVAE: its K codes replace the prior's draws
     # kind -> fingerprint of the artifacts it was loaded from (the cvae, and its dlow sampler)
     fingerprints: dict[str, str] = field(default_factory=dict)
+    # With K goals per agent (the fair protocol): each goal decoded from a prior draw (or the sampler's code k),
+    # or from the prior's mean code (evaluate.fair_code).
+    fair_code: FairCode = "prior"
+
+    def mean_codes(self, protocol: str) -> bool:
+        """Whether predictions under `protocol` decode each goal from the prior's mean (no sampler, no draws)."""
+        return protocol == "fair" and self.fair_code == "mean" and reads_goal(self.variant)
 
     @property
     def variant(self) -> str:
@@ -98,8 +107,8 @@ class Model:
         return float(self.trained.dt_s or 0.4)
 
     def predictor(self, k: int, seed: int, protocol: str = "oracle", sampled: np.ndarray | None = None) -> Predictor:
-        cfg = EvaluateConfig(k=k, seed=seed, protocol=protocol)
-        if self.sampler is not None and self.sampler.k != k:
+        cfg = EvaluateConfig(k=k, seed=seed, protocol=protocol, fair_code=self.fair_code)
+        if self.sampler is not None and self.sampler.k != k and not self.mean_codes(protocol):
             raise UsageError(f"this model's DLow sampler draws k = {self.sampler.k} futures per agent, not {k}")
         return Predictor(cfg, self.trained, sampled, self.obs_len, self.pred_len, self.device, self.sampler)
 
@@ -224,14 +233,14 @@ def load(
     list`), on `device` (cpu, cuda); with `dlow` (a `dlow` artifact trained over this CVAE) its K futures come from
     AgentFormer's DLow sampler, as they do for a shipped model its profile evaluates through one. A DLow
     sampler's own id (`dlow/8e1b07`) loads it with the CVAE it was trained over."""
-    store, artifact, sampler_artifact = _cvae_and_sampler(ref, root, dlow)
+    store, artifact, sampler_artifact, fair_code = _cvae_and_sampler(ref, root, dlow)
     chosen = devices.resolve(device)
     trained = load_model(artifact, chosen)
     sampler = None if sampler_artifact is None else load_sampler(sampler_artifact, chosen)
     windows = [a for a in store.chain(artifact) if isinstance(a, Artifact) and a.kind == "windows"]
     stats = windows[0].manifest.stats if windows else {"obs_len": 8, "pred_len": PRED_LEN}
     loaded = {a.kind: a.fingerprint for a in (artifact, sampler_artifact) if a is not None}
-    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler, loaded)
+    return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler, loaded, fair_code)
 
 
 @dataclass(frozen=True)

@@ -355,6 +355,9 @@ class DLowConfig(_Section):
     seed: int = 0
 
 
+FairCode = Literal["prior", "mean"]  # the code a goal decodes with under the fair protocol (EvaluateConfig)
+
+
 class EvaluateConfig(_ConstantVelocity):
     """Test-time sampling and metrics (ForceFormer §IV-C; definitions in docs/metrics.md)."""
 
@@ -364,6 +367,10 @@ class EvaluateConfig(_ConstantVelocity):
     # predict and the API do), paper (the paper's pick: the sampled goal nearest the true end point), oracle
     # (the true end point). The baseline and cv read no goal.
     protocol: Literal["paper", "fair", "oracle"] = "fair"
+    # Under the fair protocol, the code sample k decodes its goal k with: a draw from the prior (or the DLow
+    # sampler's code k), as AgentFormer samples; or the prior's mean, so that the K goals alone spread the K
+    # futures (docs/experiments/fair-training.md). Other protocols share one goal over K draws.
+    fair_code: FairCode = "prior"
     k: int = Field(20, gt=0)
     part: Literal["test", "val"] = "test"
     collision_threshold_m: float = Field(0.1, gt=0)  # γ (paper); pairs closer than this collide
@@ -414,11 +421,13 @@ _SHARED_BY_VARIANTS: Final = frozenset({"variant", "variants", "seed"})
 
 
 class VariantRecipe(_Section):
-    """The cvae and dlow keys one variant trains with instead of the profile's (`[per_variant.<variant>.cvae]`):
-    a recipe chosen on validation for one variant leaves the others, and their fingerprints, alone."""
+    """The cvae, dlow and evaluate keys one variant trains and samples with instead of the profile's
+    (`[per_variant.<variant>.cvae]`): a recipe chosen on validation for one variant leaves the others, and their
+    fingerprints, alone."""
 
     cvae: dict[str, Any] = {}
     dlow: dict[str, Any] = {}
+    evaluate: dict[str, Any] = {}
 
 
 def _with_overrides(section: _Section, overrides: Mapping[str, Any]) -> _Section:
@@ -471,13 +480,13 @@ class PipelineConfig(_Section):
         return self
 
 
-# The stage sections of a configuration (per_variant is recipes over two of them, not a section).
+# The stage sections of a configuration (per_variant is recipes over three of them, not a section).
 SECTIONS: Final = tuple(name for name in PipelineConfig.model_fields if name != "per_variant")
 
 
 def variant_section(cfg: PipelineConfig, name: str) -> _Section:
     """Section `name` as the cvae section's variant runs with it: the profile's, with the keys that variant sets
-    in `[per_variant.<variant>.<name>]` (cvae and dlow). Fingerprints and builds read sections through this."""
+    in `[per_variant.<variant>.<name>]` (cvae, dlow, evaluate). Fingerprints and builds read sections through this."""
     if name not in SECTIONS:
         raise AttributeError(f"{name!r} is not a configuration section")
     section = getattr(cfg, name)

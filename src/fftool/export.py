@@ -13,7 +13,8 @@ what the torch path computes before the network:
 
 Output: `futures` (1, K, A, pred_len, 2) float32, world metres. The goal U-Net's sampling (TTST's k-means)
 stays on the host: a goal variant's graph takes goals (from `fftool.api.GoalSampler`, or a planner's own).
-A model drawn from its prior (no DLow sampler) is refused: its draws are random, so no graph could equal it.
+A model drawn from its prior (no DLow sampler) is refused: its draws are random, so no graph could equal it;
+a goal variant whose profile decodes each goal from the prior's mean (`evaluate.fair_code`) needs no sampler.
 """
 
 from __future__ import annotations
@@ -50,11 +51,12 @@ def input_names(variant: str) -> list[str]:
 class _Graph(torch.nn.Module):
     """The torch path of `Model.predict` from its padded batch on, as one module of tensors in and out."""
 
-    def __init__(self, model: Any) -> None:  # an fftool.api.Model with a DLow sampler
+    def __init__(self, model: Any) -> None:  # an fftool.api.Model with a DLow sampler, or with mean codes
         super().__init__()
         self.net, self.sampler = model.trained.model, model.sampler
-        self.predictor = model.predictor(model.sampler.k, 0, "fair" if reads_goal(model.variant) else "oracle")
-        self.variant, self.pred_len, self.k = model.variant, model.pred_len, model.sampler.k
+        k = model.trained.config.k if model.sampler is None else model.sampler.k
+        self.predictor = model.predictor(k, 0, "fair" if reads_goal(model.variant) else "oracle")
+        self.variant, self.pred_len, self.k = model.variant, model.pred_len, k
 
     def forward(
         self,
@@ -117,10 +119,11 @@ class Exported:
 
 
 def export(model: Any, out: Path, source: dict[str, str]) -> Exported:
-    """Write `model` (an fftool.api.Model with a DLow sampler) to `out` as model.onnx + manifest.json, built
-    in a temporary folder beside it and moved into place whole. source: where it came from (name, ids)."""
+    """Write `model` (an fftool.api.Model with a DLow sampler, or a goal variant that decodes each goal from
+    its prior's mean) to `out` as model.onnx + manifest.json, built in a temporary folder beside it and moved
+    into place whole. source: where it came from (name, ids)."""
     check_out(out)
-    if model.sampler is None:
+    if model.sampler is None and not model.mean_codes("fair"):
         raise UsageError(
             f"this {model.variant} model draws from its prior (no DLow sampler): random draws have no ONNX "
             "equivalent that equals them; export a model with a sampler (fftool models list: .../dlow)"
@@ -137,6 +140,7 @@ def export(model: Any, out: Path, source: dict[str, str]) -> Exported:
         "format": f"ONNX, opset {OPSET}",
         "variant": model.variant,
         "k": graph.k,
+        "codes": "prior mean per goal" if model.mean_codes("fair") else "DLow sampler",
         "obs_len": model.obs_len,
         "pred_len": model.pred_len,
         "step_s": model.step_s,

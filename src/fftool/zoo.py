@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from fftool.artifacts.hashing import sha256_file
 from fftool.artifacts.store import MANIFEST, Artifact, ArtifactStore, check_schema
-from fftool.config import PipelineConfig, load_config, predictor_config
+from fftool.config import EvaluateConfig, FairCode, PipelineConfig, load_config, predictor_config, variant_section
 from fftool.errors import FftoolError, IntegrityError, UsageError
 from fftool.outputs import replacing_file
 from fftool.variants import VARIANTS, reads_goal
@@ -264,6 +264,7 @@ class Bundle:
     dlow: Artifact | None
     goal: Artifact | None
     store: ArtifactStore  # the profile's shipped models
+    fair_code: FairCode  # the code each goal decodes with under the fair protocol (evaluate.fair_code)
 
 
 def find(name: str, root: Path | None = None) -> Bundle:
@@ -292,7 +293,9 @@ def find(name: str, root: Path | None = None) -> Bundle:
     goal = by_kind.get("goal") if reads_goal(variant) else None
     if reads_goal(variant) and goal is None:
         raise IntegrityError(f"{name}: a goal variant, and its benchmark's goal U-Net is not shipped")
-    return Bundle(cvae, dlow.artifact if dlow else None, goal.artifact if goal else None, zoo)
+    evaluate = variant_section(predictor_config(profile_config(profile), variant), "evaluate")
+    assert isinstance(evaluate, EvaluateConfig)
+    return Bundle(cvae, dlow.artifact if dlow else None, goal.artifact if goal else None, zoo, evaluate.fair_code)
 
 
 def install(target: ArtifactStore, models: Iterable[Shipped], root: Path | None = None) -> list[tuple[Shipped, str]]:

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from fftool.artifacts.store import Artifact, ArtifactStore
+from fftool.config import FairCode
 from fftool.errors import FftoolError
 from fftool.learning.batches import load_scene_set
 from fftool.learning.cvae_model import load_model, val_windows
@@ -37,11 +38,17 @@ def _upstream(store: ArtifactStore, cvae: Artifact, kind: str) -> Artifact | Non
 
 
 def fair_validation(
-    store: ArtifactStore, goals: Artifact, cvae: Artifact, dlow: Artifact | None, device: torch.device
+    store: ArtifactStore,
+    goals: Artifact,
+    cvae: Artifact,
+    dlow: Artifact | None,
+    device: torch.device,
+    code: FairCode = "prior",
 ) -> dict[str, Any]:
     """minADE / minFDE@K (metres) of `cvae` (through `dlow` when given) on its validation windows, sample k
     decoding goal k of the goals artifact `goals`; with the number of windows and the goal U-Net they came from.
-    The windows are those the model's own training validated on (the CVAE's or the sampler's fixed subset)."""
+    The windows are those the model's own training validated on (the CVAE's or the sampler's fixed subset).
+    code "mean": each goal decoded from the prior's mean code (evaluate.fair_code), the sampler unused."""
     trained = load_model(cvae, device)
     cfg, benchmark = trained.config, str(cvae.manifest.stats["benchmark"])
     windows = _upstream(store, cvae, "windows")
@@ -60,7 +67,7 @@ def fair_validation(
             load_sampler(dlow, device),
         )
     ade, fde = fair_min_ade_fde(
-        trained, val, subset, sampled, int(windows.manifest.stats["obs_len"]), cfg.k, seed, sampler=sampler
+        trained, val, subset, sampled, int(windows.manifest.stats["obs_len"]), cfg.k, seed, sampler, code
     )
     return {
         "min_ade_m": round(ade, 6),

@@ -15,7 +15,7 @@ import torch
 
 from fftool.artifacts.schema import GOALS_FILE, GOALS_INDEX_FILE
 from fftool.artifacts.store import Artifact
-from fftool.config import EvaluateConfig
+from fftool.config import EvaluateConfig, FairCode
 from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch, SceneSet
 from fftool.learning.cvae_model import Trained, most_likely, sample
@@ -78,7 +78,8 @@ class Predictor:
             return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
         B, _, A, _ = goals.shape
         pick = None
-        if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
+        fair = self.protocol == "fair"
+        if fair:  # a different goal per sample: every sample has its own past inputs
             batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
             if self.sampler is not None:  # sample j of a window decodes the sampler's code j
                 pick = torch.arange(k, device=self.device).repeat(B)
@@ -87,9 +88,12 @@ class Predictor:
         if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
             batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
         prepared = prepare(batch, self.variant, obs_len, goal=goal)
-        futures = sample(
-            self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick
-        )
+        if fair and self.cfg.fair_code == "mean":  # each goal decoded from the prior's mean code
+            futures = most_likely(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s)
+        else:
+            futures = sample(
+                self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick
+            )
         return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
 
     @torch.inference_mode()
@@ -170,13 +174,14 @@ def fair_min_ade_fde(
     k: int,
     seed: int,
     sampler: QNet | None = None,
+    code: FairCode = "prior",
 ) -> tuple[float, float]:
     """minADE_K and minFDE_K (metres, per agent) of the windows `windows` of `scenes` under the fair protocol:
     sample k decodes sampled goal k (sampled_goals (M, K, 2), aligned with scenes.data), as `evaluate` does;
-    with a DLow sampler, from its K codes."""
+    with a DLow sampler, from its K codes; with code "mean", from the prior's mean code."""
     model, cfg = trained.model, trained.config
     device = next(model.parameters()).device
-    evaluate = EvaluateConfig(protocol="fair", k=k, seed=seed, batch_windows=cfg.batch_windows)
+    evaluate = EvaluateConfig(protocol="fair", fair_code=code, k=k, seed=seed, batch_windows=cfg.batch_windows)
     pred_len = scenes.data.xy.shape[1] - obs_len
     predictor = Predictor(evaluate, trained, sampled_goals, obs_len, pred_len, device, sampler)
     plan = scenes.plan(windows, cfg.batch_windows, cfg.max_agent_pairs, np.random.default_rng(seed))

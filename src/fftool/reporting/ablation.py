@@ -27,7 +27,7 @@ from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, see
 from fftool.errors import UsageError
 from fftool.outputs import replacing_folder
 from fftool.reporting import claims, score_plots, scores, tables
-from fftool.stages.evaluate import METRIC_DEFINITIONS
+from fftool.stages.evaluate import METRIC_DEFINITIONS, codes_of
 from fftool.variants import PREDICTORS
 
 
@@ -163,11 +163,19 @@ def caption(cfg: PipelineConfig, profile: str) -> str:
     )
 
 
+def _codes(cfg: PipelineConfig) -> dict[str, str]:
+    """Where each CVAE of the report takes its K futures' codes (`evaluate.codes_of`)."""
+    return {p: codes_of(predictor_config(cfg, p)) for p in ("baseline", *cfg.report.variants)}
+
+
 def _samplers(cfg: PipelineConfig) -> str:
-    dlow = [p for p in ("baseline", *cfg.report.variants) if p in cfg.dlow.variants]
-    if not dlow:
+    codes = _codes(cfg)
+    if set(codes.values()) == {"prior"}:
         return "every CVAE's K samples drawn from its prior (no DLow)"
-    return f"K futures from a DLow sampler for {', '.join(dlow)}, from the CVAE's prior for the others"
+    named = {"dlow": "a DLow sampler", "mean": "the prior's mean code for each of the K goals"}
+    parts = [f"{text} for {', '.join(p for p, c in codes.items() if c == code)}" for code, text in named.items()
+             if code in codes.values()]  # fmt: skip
+    return f"K futures from {'; from '.join(parts)}; from the CVAE's prior for the others"
 
 
 def _seeds(cfg: PipelineConfig) -> str:
@@ -242,7 +250,7 @@ def write_report(
     """
     block = cfg.report.block_length(cfg.windows)
     scored, rows = scores.score(store, results, cfg.report, cfg.evaluate.collision_threshold_m, block)
-    grid, text = tables.Grid(scored, cfg.report.confidence, frozenset(cfg.dlow.variants)), caption(cfg, profile)
+    grid, text = tables.Grid(scored, cfg.report.confidence, _codes(cfg)), caption(cfg, profile)
     counts = 1 if len(grid_seeds(cfg)) > 1 else 0  # a mean over seeds of counts has a decimal
     built = [
         tables.table2(grid, text),

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
@@ -35,20 +35,26 @@ class Table:
     data: pd.DataFrame  # numbers (csv): estimate, sd, low, high, per seed
 
 
+# How a row names where its CVAE took its K codes (`Grid.method`).
+CODE_NAMES: Final = {"prior": "CVAE samples", "dlow": "DLow", "mean": "mean code"}
+
+
 @dataclass(frozen=True)
 class Grid:
     """What the tables cover: scores, the scenes and predictors present, and the interval level."""
 
     scores: Scores
     level: float
-    dlow: frozenset[str] = frozenset()  # the predictors whose K futures come from a DLow sampler
+    # where each CVAE takes its K futures' codes (`evaluate.codes_of`): "prior", "dlow", "mean"; absent: prior
+    codes: Mapping[str, str] = field(default_factory=dict)
 
     def method(self, predictor: str) -> str:
-        """A row's name, saying how a CVAE drew its samples when the grid has a DLow sampler anywhere:
-        "AgentFormer (DLow)" against "ForceFormer-Dr (CVAE samples)" (the caption says so when it has none)."""
-        if predictor == "cv" or not self.dlow:
+        """A row's name, saying how a CVAE drew its samples when any CVAE of the grid draws other than from its
+        prior: "AgentFormer (DLow)", "ForceFormer-Re (mean code)" against "ForceFormer-Dr (CVAE samples)" (the
+        caption says so when none does)."""
+        if predictor == "cv" or set(self.codes.values()) <= {"prior"}:
             return PAPER_NAMES[predictor]
-        return f"{PAPER_NAMES[predictor]} ({'DLow' if predictor in self.dlow else 'CVAE samples'})"
+        return f"{PAPER_NAMES[predictor]} ({CODE_NAMES[self.codes.get(predictor, 'prior')]})"
 
     @property
     def scenes(self) -> list[str]:

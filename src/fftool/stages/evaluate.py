@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -26,7 +26,7 @@ import torch
 
 from fftool.artifacts.schema import COMMANDS, PREDICTIONS_FILE, VERSIONS
 from fftool.artifacts.store import Artifact
-from fftool.config import EvaluateConfig, PipelineConfig
+from fftool.config import EvaluateConfig, PipelineConfig, variant_section
 from fftool.errors import FftoolError
 from fftool.learning.batches import SceneBatch, load_scene_set
 from fftool.learning.cvae_model import load_model
@@ -61,11 +61,24 @@ def predictor_of(cfg: PipelineConfig) -> str:
     return "cv" if cfg.evaluate.predictor == "cv" else cfg.cvae.variant
 
 
+def codes_of(cfg: PipelineConfig) -> Literal["mean", "dlow", "prior"]:
+    """Where an evaluation's CVAE takes the codes of its K futures: the prior's mean for each goal (a goal variant
+    under the fair protocol with `fair_code = "mean"`), its DLow sampler (a variant of `dlow.variants`), or draws
+    from its prior (cv: its own noise, reported as prior draws)."""
+    predictor, evaluate = predictor_of(cfg), variant_section(cfg, "evaluate")
+    assert isinstance(evaluate, EvaluateConfig)
+    if reads_goal(predictor) and evaluate.protocol == "fair" and evaluate.fair_code == "mean":
+        return "mean"
+    return "dlow" if predictor in cfg.dlow.variants else "prior"
+
+
 def declare(cfg: PipelineConfig) -> Reads:
     """Only what the predictor and protocol read: the goal protocol only for predictors that read a goal (so
-    the baseline and cv evaluations are shared by every protocol), the sampled goals unless the protocol is
-    the oracle, the constant-velocity noise only for cv, the forces arrays sampling uses (dr, re)."""
-    predictor = predictor_of(cfg)
+    the baseline and cv evaluations are shared by every protocol), the fair protocol's code only under it, the
+    sampled goals unless the protocol is the oracle, the DLow sampler unless each goal decodes the prior's mean,
+    the constant-velocity noise only for cv, the forces arrays sampling uses (dr, re)."""
+    predictor, evaluate = predictor_of(cfg), variant_section(cfg, "evaluate")
+    assert isinstance(evaluate, EvaluateConfig)
     shared = tuple(f"evaluate.{key}" for key in EvaluateConfig.model_fields if key not in _PER_PREDICTOR)
     if predictor == "cv":
         return Reads(
@@ -74,22 +87,24 @@ def declare(cfg: PipelineConfig) -> Reads:
             command=" --variant cv",
         )
     goal = reads_goal(predictor)
+    fair = goal and evaluate.protocol == "fair"
     arrays = SPECS[predictor].sampling_reads
     artifacts: dict[str, tuple[str, ...] | None] = {"windows": None, **({"forces": arrays} if arrays else {})}
     artifacts["cvae"] = None
-    if predictor in cfg.dlow.variants:  # AgentFormer's test-time sampler over that CVAE
+    if codes_of(cfg) == "dlow":  # AgentFormer's test-time sampler over that CVAE
         artifacts["dlow"] = None
-    if goal and cfg.evaluate.protocol != "oracle":
+    if goal and evaluate.protocol != "oracle":
         artifacts["goals"] = None
     return Reads(
-        params=(*shared, *(("evaluate.protocol",) if goal else ())),
+        params=(*shared, *(("evaluate.protocol",) if goal else ()), *(("evaluate.fair_code",) if fair else ())),
         artifacts=artifacts,
-        command=f" --variant {predictor}" + (f" --protocol {cfg.evaluate.protocol}" if goal else ""),
+        command=f" --variant {predictor}" + (f" --protocol {evaluate.protocol}" if goal else ""),
     )
 
 
-# The evaluate keys only some predictors read (`declare`): the goal protocol, the constant-velocity noise.
-_PER_PREDICTOR: Final = frozenset({"protocol", "cv_angle_std_deg", "cv_speed_std"})
+# The evaluate keys only some predictors read (`declare`): the goal protocol and the fair protocol's code, the
+# constant-velocity noise.
+_PER_PREDICTOR: Final = frozenset({"protocol", "fair_code", "cv_angle_std_deg", "cv_speed_std"})
 
 
 def _predictions_table(columns: dict[str, np.ndarray], k: int, pred_len: int) -> pa.Table:
@@ -212,7 +227,7 @@ def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str,
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: K futures per test agent-window of one benchmark, and their metrics."""
     upstream = (inputs["windows"], inputs.get("forces"), inputs.get("cvae"), inputs.get("goals"))
-    args = (cfg.evaluate, ctx.need_benchmark(), *upstream, ctx.dir, ctx.device())
+    args = (variant_section(cfg, "evaluate"), ctx.need_benchmark(), *upstream, ctx.dir, ctx.device())
     return sample_and_score(*args, on_progress=ctx.on_progress, dlow=inputs.get("dlow"))
 
 
