@@ -387,7 +387,8 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
 
 def validate(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
     """Score every shipped model that reads a goal (its CVAE, and its DLow sampler) under the fair protocol on
-    its validation windows, with the goals the profile's shipped goal U-Net draws (`learning/fair_validation`),
+    its validation windows, with the goals the profile's shipped goal U-Net draws (`learning/fair_validation`;
+    a CVAE with the code its profile decodes goals with, a DLow sampler with its own codes),
     and record the numbers in its manifest's stats (`fair_validation`); the names scored. `source` holds the
     windows, forces and goals artifacts the profile builds (`fftool reproduce` or `fftool sample-goals`)."""
     import torch
@@ -411,7 +412,10 @@ def validate(source: ArtifactStore, profile: str, benchmarks: Iterable[str], roo
             check(model, zoo)
             cvae = cvaes[model.variant].artifact if model.kind == "dlow" else model.artifact
             dlow = model.artifact if model.kind == "dlow" else None
-            found = fair_validation(source, goals, cvae, dlow, torch.device("cpu"))
+            evaluate = variant_section(predictor_config(cfg, model.variant), "evaluate")
+            assert isinstance(evaluate, EvaluateConfig)
+            code = evaluate.fair_code if dlow is None else "prior"  # a sampler is scored with its own codes
+            found = fair_validation(source, goals, cvae, dlow, torch.device("cpu"), code)
             manifest = model.artifact.manifest
             zoo.replace_manifest(model.artifact, replace(manifest, stats=manifest.stats | {"fair_validation": found}))
             write_index(zoo)  # the zoo stays whole between models: the next benchmark's `shipped` reads it all

@@ -73,6 +73,7 @@ def fair_validation(
         "min_ade_m": round(ade, 6),
         "min_fde_m": round(fde, 6),
         "k": cfg.k,
+        "code": code if sampler is None else "dlow",
         "windows": len(subset),
         "goal_unet": goals.manifest.sources["goal"],
     }

@@ -340,12 +340,13 @@ def zoo_rows(models: list[Any]) -> list[dict[str, str]]:
         ade = next((v for k, v in row.items() if k.startswith(f"{prefix}ade")), None)
         fde = next((v for k, v in row.items() if k.startswith(f"{prefix}fde")), None)
         scored = fair_numbers(model, models) if model.variant is not None and reads_goal(model.variant) else None
+        mean = False
         if scored is not None:  # with the goal U-Net shipped beside it: preferred to the training's own
-            ade, fde, fair = scored["min_ade_m"], scored["min_fde_m"], True
+            ade, fde, fair, mean = scored["min_ade_m"], scored["min_fde_m"], True, scored.get("code") == "mean"
         if ade is not None and fde is not None:
             shown = f"minADE/FDE {ade:.3f}/{fde:.3f}"
             if model.variant is not None and reads_goal(model.variant):
-                shown += " (fair)" if fair else " (true goals)"
+                shown += (" (fair, mean code)" if mean else " (fair)") if fair else " (true goals)"
         else:
             best = next(
                 ((k, v) for k, v in manifest.stats.items() if k.startswith("best_") and k != "best_epoch"), None
@@ -370,7 +371,8 @@ def zoo_caption(models: list[Any]) -> str:
         return "no shipped models"
     return (
         f"{len(models)} model(s), {total / 1e6:.1f} MB; orphaned: the code no longer computes its fingerprint; "
-        "(fair): validated with the goal module's goals, sample k with goal k, as predictions are made; "
+        "(fair): validated with the goal module's goals, sample k with goal k, as predictions are made "
+        "(mean code: each goal decoded from the prior's mean, as the profile samples it); "
         "(true goals): validated with the true end point as the goal, which no prediction has "
         "(`fftool models validate` scores them under the fair protocol)"
     )
