@@ -3,7 +3,8 @@
 Reads: the `cvae` artifact (frozen, in eval mode: no dropout, no scene rotation, no agent cap), windows and,
 for dr and re, the forces arrays the CVAE trained on. Training goals are those of the CVAE's training: the
 ground truth, or, over a CVAE trained for the goal module's goals (`goal_training.source = "module"`), goals
-moved by the module's errors, with the best epoch then chosen under the fair protocol. Writes:
+moved by the module's errors; the best epoch is chosen under the fair protocol over any CVAE whose training
+read the goal module (`GoalTrainingConfig.reads_module`). Writes:
 `dlow/<fp>/model.pt` (the Q-net's best weights by validation minADE of its K codes),
 `log.csv` and the same curves as TensorBoard events. Run: `fftool train-dlow --benchmarks zara1 --variant
 baseline`. `evaluate`, `predict` and the API then draw their K futures from its codes z = b instead of the

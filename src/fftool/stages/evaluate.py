@@ -227,7 +227,7 @@ def summary(columns: dict[str, np.ndarray], cfg: EvaluateConfig, benchmark: str,
 def build(cfg: PipelineConfig, inputs: Mapping[str, Artifact], ctx: StageContext) -> dict[str, Any]:
     """The stage contract: K futures per test agent-window of one benchmark, and their metrics."""
     upstream = (inputs["windows"], inputs.get("forces"), inputs.get("cvae"), inputs.get("goals"))
-    args = (variant_section(cfg, "evaluate"), ctx.need_benchmark(), *upstream, ctx.dir, ctx.device())
+    args = (cfg.evaluate, ctx.need_benchmark(), *upstream, ctx.dir, ctx.device())  # the variant's own section
     return sample_and_score(*args, on_progress=ctx.on_progress, dlow=inputs.get("dlow"))
 
 
