@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from fftool.dataset.steps import to_steps
@@ -104,6 +104,7 @@ def test_the_grid_data_at_another_rate_unit_or_naming_gives_the_same_tracks(
     ),
     header=st.sampled_from(["time,agent_id,x,y", "frame,ped_id,x,y", "t,id,x,y", "time,agent,x", "a,b,c,d"]),
 )
+@example(cells=[(0.0, 0, 0.0, 0.0), (7.190772539449264e307, 1, 0.0, 0.0)], header="time,agent_id,x,y")  # 1e308 steps
 def test_any_generated_table_is_read_or_refused_in_one_line(tmp_path: Path, cells: list, header: str) -> None:
     path = tmp_path / "tracks.csv"
     path.write_text(header + "\n" + "".join(",".join(str(v) for v in row) + "\n" for row in cells))

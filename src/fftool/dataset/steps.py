@@ -19,6 +19,7 @@ from fftool.dataset.windowing import slice_sequence
 from fftool.errors import RawDataError, UsageError
 
 _ON_GRID = 1e-6  # a time within this many steps of a grid point is on it
+_MAX_STEPS = 2**31  # the longest grid a file may span (steps are int64 from float64 times)
 # How tracks are put on the grid; a custom dataset's tracks fingerprint hashes it (dataset/custom.py), so a
 # change here rebuilds them. 2: each time snapped onto the grid on its own (1 dropped near-grid end points).
 RESAMPLING_VERSION = 2
@@ -61,7 +62,14 @@ def grid_steps(
             f"agent {labels[agent[i]]} has no position from time {time[i]:.6g} s to {time[i + 1]:.6g} s, a gap "
             f"longer than {max_gap_s:g} s that interpolation would invent; split the track or raise the gap limit",
         )
-    rel = (time - last) / step_s
+    with np.errstate(over="ignore"):
+        rel = (time - last) / step_s
+    if not np.isfinite(rel).all() or rel.min() < -_MAX_STEPS:  # a grid this long has no int64 steps
+        raise RawDataError(
+            path,
+            f"times span {last - float(time.min()):.6g} s, more than {_MAX_STEPS:,} steps of {step_s:g} s; expected "
+            "times in seconds (or frame numbers with their frame step)",
+        )
     # A time on the grid up to floating-point rounding (a frame number times a frame step, a unit converted)
     # is snapped onto it, each on its own: ceil/floor of an unsnapped -2.9999999997 would drop that observation.
     near = np.abs(rel - np.round(rel)) < _ON_GRID

@@ -4,8 +4,9 @@ Reads: windows and, for the dr and re variants, the forces arrays they use (`fft
 Training goals are the ground truth, or, for goal variants with `goal_training.source = "module"`, the
 ground truth moved by the goal module's own errors (`learning.goal_errors`, from the goals artifact's
 validation part); with `"fair"`, the best-of-K samples decode the module's goal sets. With either, or with
-`goal_training.fair_best_epoch`, the best epoch is chosen under the fair protocol on validation. Writes: `cvae/<fp>/model.pt` (best
-weights by validation minADE, the resolved config, everything needed to rebuild the model),
+`goal_training.fair_best_epoch`, the best epoch is chosen under the fair protocol on validation. Writes:
+`cvae/<fp>/model.pt` (best weights by validation minADE, the resolved config, everything needed to rebuild
+the model),
 `log.csv` and the same per-epoch curves as TensorBoard events in `tensorboard/` (written live to the
 scratch folder while training: `tensorboard --logdir <root>`). Run: `fftool train-cvae --benchmarks zara1 --variant dr`.
 
