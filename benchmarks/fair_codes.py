@@ -14,10 +14,10 @@ constant-acceleration curves to the same goals (`benchmarks/goal_curves.py`, no 
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from pathlib import Path
 
+import goal_curves  # beside this script
 import pandas as pd
 import torch
 
@@ -26,19 +26,6 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.learning.fair_validation import fair_validation
 from fftool.variants import reads_goal
-
-
-def _curves(root: Path, goals: str, cvae: str) -> tuple[float, float]:
-    """The goal curves' fair minADE / minFDE on a CVAE's validation windows (benchmarks/goal_curves.py)."""
-    script = Path(__file__).with_name("goal_curves.py")
-    out = subprocess.run(
-        [sys.executable, str(script), cvae, "--goals", goals, "--root", str(root)],
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-    last = out.stdout.strip().splitlines()[-1].split(",")
-    return float(last[-2]), float(last[-1])
 
 
 def main() -> None:
@@ -72,7 +59,7 @@ def main() -> None:
                 label = "DLow sampler" if dlow else {"prior": "prior draws", "mean": "prior mean"}[code]
                 rows.append((benchmark, model.variant, model.artifact.id, label, found))
             if model.kind == "cvae" and model.variant == "goal":
-                ade, fde = _curves(args.root, goals.id, cvae.id)
+                ade, fde, _ = goal_curves.score(source, goals, cvae)
                 rows.append((benchmark, "curves", "", "goal curves (no network)", {"min_ade_m": ade, "min_fde_m": fde}))
         print(f"{benchmark}: {sum(r[0] == benchmark for r in rows)} rows", file=sys.stderr, flush=True)
     table = pd.DataFrame(

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from fftool.api import find_artifact
+from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.learning.batches import load_scene_set
 from fftool.learning.cvae_model import load_model, val_windows
 from fftool.learning.sampling import load_sampled_goals
@@ -35,14 +36,8 @@ def goal_curves(xy: torch.Tensor, goals: torch.Tensor, obs_len: int) -> torch.Te
     return last[..., None, :] + torch.stack(ahead, -2)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("model", help="the CVAE (cvae/<id>) whose validation windows are scored")
-    parser.add_argument("--goals", required=True, help="the goals artifact (goals/<id>) of the same benchmark")
-    parser.add_argument("--root", type=Path, default=Path("artifacts"))
-    args = parser.parse_args()
-    store, goals = find_artifact(args.goals, "goals", args.root)
-    cvae = find_artifact(args.model, "cvae", args.root)[1]
+def score(store: ArtifactStore, goals: Artifact, cvae: Artifact) -> tuple[float, float, int]:
+    """Fair minADE / minFDE (m) of the goal curves on `cvae`'s validation windows, and the number of windows."""
     cfg, benchmark = load_model(cvae, torch.device("cpu")).config, str(cvae.manifest.stats["benchmark"])
     windows = store.lookup("windows", cvae.manifest.sources["windows"])
     obs_len = int(windows.manifest.stats["obs_len"])
@@ -60,9 +55,21 @@ def main() -> None:
         ade += float((sample_ade.min(1).values * mask).sum())
         fde += float((sample_fde.min(1).values * mask).sum())
         count += int(mask.sum())
+    return ade / count, fde / count, len(subset)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("model", help="the CVAE (cvae/<id>) whose validation windows are scored")
+    parser.add_argument("--goals", required=True, help="the goals artifact (goals/<id>) of the same benchmark")
+    parser.add_argument("--root", type=Path, default=Path("artifacts"))
+    args = parser.parse_args()
+    store, goals = find_artifact(args.goals, "goals", args.root)
+    cvae = find_artifact(args.model, "cvae", args.root)[1]
+    ade, fde, windows = score(store, goals, cvae)
     writer = csv.writer(sys.stdout)
     writer.writerow(["model", "benchmark", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
-    writer.writerow(["goal curves", benchmark, len(subset), f"{ade / count:.4f}", f"{fde / count:.4f}"])
+    writer.writerow(["goal curves", cvae.manifest.stats["benchmark"], windows, f"{ade:.4f}", f"{fde:.4f}"])
 
 
 if __name__ == "__main__":

@@ -95,7 +95,7 @@ class Model:
 
     def mean_codes(self, protocol: str) -> bool:
         """Whether predictions under `protocol` decode each goal from the prior's mean (no sampler, no draws)."""
-        return protocol == "fair" and self.fair_code == "mean" and reads_goal(self.variant)
+        return EvaluateConfig(protocol=protocol, fair_code=self.fair_code).mean_codes(self.variant)
 
     @property
     def variant(self) -> str:

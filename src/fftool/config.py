@@ -22,7 +22,7 @@ from pydantic_core import PydanticCustomError
 
 from fftool.dataset.scenes import BENCHMARKS, DT_S, FRAME_STRIDE, OBS_LEN, PRED_LEN, Part
 from fftool.errors import ConfigError
-from fftool.variants import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant
+from fftool.variants import FORCEFORMER_VARIANTS, PREDICTORS, ForceFormerVariant, Variant, reads_goal
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -377,6 +377,11 @@ class EvaluateConfig(_ConstantVelocity):
     batch_windows: int = Field(32, gt=0)  # windows per forward pass (speed only: results do not change)
     max_agent_pairs: int = Field(2048, gt=0)  # windows × agents² per pass (smaller passes are faster on CPU)
     seed: int = 0
+
+    def mean_codes(self, predictor: str) -> bool:
+        """Whether `predictor` decodes each of its K goals from the prior's mean code (a goal variant under the
+        fair protocol with fair_code "mean"), rather than from draws or a DLow sampler's codes."""
+        return reads_goal(predictor) and self.protocol == "fair" and self.fair_code == "mean"
 
 
 class ReportConfig(_Section):

@@ -141,9 +141,10 @@ def fair_best_of_k(
     obs_len: int,
     gen: torch.Generator,
 ) -> torch.Tensor:
-    """The best-of-K term under the fair protocol, per window (B,): sample k decodes goal k of goal_sets
-    (B, A, K, 2, world), each window encoded once per goal (as `evaluate` does), one prior draw each; the
-    squared error summed over steps and xy, min over the K per agent, mean over the window's agents.
+    """The best-of-K term under the fair protocol, as `cvae_loss` averages its own: sample k decodes goal k of
+    goal_sets (B, A, K, 2, world), each window encoded once per goal (as `evaluate` does), one prior draw each;
+    the squared error summed over steps and xy, min over the K per agent, mean over each window's agents, then
+    over the windows with an agent.
 
     Each copy is turned by its own random scene rotation; the errors do not depend on the frame."""
     B, A, k = goal_sets.shape[:3]
@@ -155,7 +156,9 @@ def fair_best_of_k(
     futures = sample(model, prepared, cfg, forces_cfg, dt_s, 1, gen)[:, 0]  # (B·k, A, T, 2)
     error = ((futures.float() - prepared.future_pos) ** 2).sum((-1, -2)).view(B, k, A)
     mask = batch.agent_mask
-    return (error.min(1).values * mask).sum(1) / mask.sum(1).clamp_min(1)
+    per_window = (error.min(1).values * mask).sum(1) / mask.sum(1).clamp_min(1)
+    real = mask.any(1)
+    return (per_window * real).sum() / real.sum().clamp_min(1)
 
 
 @torch.no_grad()

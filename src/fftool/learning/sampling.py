@@ -78,8 +78,7 @@ class Predictor:
             return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
         B, _, A, _ = goals.shape
         pick = None
-        fair = self.protocol == "fair"
-        if fair:  # a different goal per sample: every sample has its own past inputs
+        if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
             batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
             if self.sampler is not None:  # sample j of a window decodes the sampler's code j
                 pick = torch.arange(k, device=self.device).repeat(B)
@@ -88,7 +87,7 @@ class Predictor:
         if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
             batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
         prepared = prepare(batch, self.variant, obs_len, goal=goal)
-        if fair and self.cfg.fair_code == "mean":  # each goal decoded from the prior's mean code
+        if self.cfg.mean_codes(self.variant):  # each goal decoded from the prior's mean code
             futures = most_likely(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s)
         else:
             futures = sample(

@@ -126,9 +126,7 @@ class _Trainer:
                     assert self.module is not None
                     sets = self.module.errors.draw_sets(batch.xy, self.obs_len, gen, cfg.train_k)
                     term = fair_best_of_k(self.model, batch, sets, cfg, self.forces_cfg, self.dt_s, self.obs_len, gen)
-                    real = batch.agent_mask.any(1)
-                    sample_term = (term * real).sum() / real.sum().clamp_min(1)
-                    parts = parts._replace(total=parts.total + sample_term, best_of_k=sample_term)
+                    parts = parts._replace(total=parts.total + term, best_of_k=term)
                 if distributed.active():
                     yield Step(parts.total * share, tuple(parts), share / distributed.world_size(), seen)
                 else:

@@ -67,7 +67,7 @@ def codes_of(cfg: PipelineConfig) -> Literal["mean", "dlow", "prior"]:
     from its prior (cv: its own noise, reported as prior draws)."""
     predictor, evaluate = predictor_of(cfg), variant_section(cfg, "evaluate")
     assert isinstance(evaluate, EvaluateConfig)
-    if reads_goal(predictor) and evaluate.protocol == "fair" and evaluate.fair_code == "mean":
+    if evaluate.mean_codes(predictor):
         return "mean"
     return "dlow" if predictor in cfg.dlow.variants else "prior"
 
