@@ -158,6 +158,10 @@ def test_a_variants_recipe_replaces_its_keys_for_that_variant_alone(tmp_path: Pa
         ),
         ("per_variant.re.cvae.seed=1", "per_variant.re.cvae.seed: expected a key the variants may differ in"),
         ("per_variant.baseline.cvae.variant='dr'", "per_variant.baseline.cvae.variant: expected a key the variants"),
+        (
+            "per_variant.baseline.cvae.output='goal_residual'",
+            "per_variant.baseline.cvae.output: expected 'offset' or 'cv_residual' for the baseline",
+        ),
         ("per_variant.baseline.goal.epochs=3", "unknown key 'per_variant.baseline.goal'"),
         ("per_variant.teleport.cvae.epochs=3", "per_variant.teleport"),
         ("per_variant.baseline.epochs=3", "expected section.key=value, e.g. ingest.frame_stride=10, or per_variant."),
@@ -168,6 +172,14 @@ def test_a_bad_variant_recipe_names_its_key(override: str, expected: str) -> Non
     with pytest.raises(ConfigError) as caught:
         load_config(None, [override])
     assert expected in str(caught.value)
+
+
+def test_a_goal_variants_recipe_is_checked_as_that_variant_trains() -> None:
+    """goal_residual is refused for the baseline alone, so a goal variant's recipe may set it whatever the
+    profile's own variant is."""
+    cfg = load_config(None, ["per_variant.re.cvae.output='goal_residual'"])
+    assert cfg.cvae.variant == "baseline"
+    assert variant_section(predictor_config(cfg, "re"), "cvae").output == "goal_residual"
 
 
 def test_the_raw_folder_defaults_to_where_fetch_data_put_the_files(

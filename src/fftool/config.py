@@ -471,8 +471,9 @@ class PipelineConfig(_Section):
                         "a key the variants may differ in (not variant, variants or seed)",
                         shared[0],
                     )
+                as_trained = {"variant": variant} if name == "cvae" else {}  # checked as that variant trains
                 try:
-                    _with_overrides(getattr(self, name), overrides)
+                    _with_overrides(getattr(self, name), {**overrides, **as_trained})
                 except ValidationError as exc:
                     issue = exc.errors()[0]
                     if issue["type"] == "cross_field":
