@@ -57,6 +57,15 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "steps_4x": (["goal.epochs=16", "goal.max_train=9216"], []),
     # Input, against "profile": the training part's occupancy of the same place as one more map channel.
     "scene_prior": (['goal.scene_prior="occupancy"'], []),
+    # Beyond the CPU budget (trained on a GPU; each one's CPU cost is estimated from its steps): what more
+    # training and Goal-SAR's own widths buy, against "profile" trained on the same GPU.
+    "steps_4x_more": (["goal.epochs=64"], []),
+    "steps_16x_more": (["goal.epochs=256"], []),
+    "goalsar_widths": (["goal.widths=[32, 32, 64, 64, 64]"], []),
+    "goalsar_widths_steps_4x": (["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64"], []),
+    "goalsar_widths_steps_4x_reversal": (
+        ["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64", "goal.time_reversal=0.5"], []
+    ),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -82,29 +91,29 @@ def _corner_cells_to_world(cells, center, R, res, size):  # type: ignore[no-unty
 
 
 def measure(
-    lever: str, benchmark: str, profile: Path, extra: list[str], root: Path, rescore: list[str]
+    lever: str, benchmark: str, profile: Path, extra: list[str], root: Path, rescore: list[str], runtime: Runtime
 ) -> list[dict[str, object]]:
     overrides, patches = LEVERS[lever]
     for name in patches:
         _patch(name)
     store = ArtifactStore(root / lever)
     started = time.perf_counter()
+    device = torch.device(runtime.device)
     if rescore:  # the lever's models as trained, scored with other goal sampling
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
     else:
         cfg = load_config(profile, [*overrides, *extra])
-        built = pipeline.run(cfg, store, ["goal"], runtime=Runtime(), benchmark=benchmark)
+        built = pipeline.run(cfg, store, ["goal"], runtime=runtime, benchmark=benchmark)
         goal, windows, maps = built["goal"], built["windows"], built["maps"]
     seconds = time.perf_counter() - started
-    device = torch.device("cpu")
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
     if rescore:
         sampling = GoalsConfig.model_validate(sampling.model_dump() | _values(rescore, "goals"))
-    scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg)
+    scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg).to(device)
     val = load_agent_windows(windows, benchmark, "val")
     obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
-    fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len)
+    fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device)
     rows = []
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
@@ -118,6 +127,8 @@ def measure(
                 "best_epoch": goal.manifest.stats.get("best_epoch"),
                 "build_s": round(float(goal.manifest.stats.get("build_seconds", seconds)), 1),
                 "threads": torch.get_num_threads(),
+                "device": device.type,
+                "goal_fingerprint": goal.fingerprint,
                 "overrides": " ".join([*overrides, *extra]),
                 "patches": " ".join(patches),
             }
@@ -146,15 +157,15 @@ def _values(assignments: list[str], section: str) -> dict[str, object]:
 
 
 @torch.no_grad()
-def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len) -> dict[int, tuple[float, float]]:  # type: ignore[no-untyped-def]
+def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device) -> dict[int, tuple[float, float]]:  # type: ignore[no-untyped-def]
     """Goal-FDE@K and @1 per mode radius, as `goal_model.evaluate` computes them, with the TTST draws made once:
     the mode takes no random draw, so only goal 1 differs between radii."""
-    gen = generator(goal_cfg.seed, torch.device("cpu"))
-    scene = goal_scene_index(scene_maps, val, goal_cfg, cross_fit=False)
+    gen = generator(goal_cfg.seed, device)
+    scene = goal_scene_index(scene_maps, val, goal_cfg, cross_fit=False).to(device)
     errors: dict[int, list[torch.Tensor]] = {radius: [] for radius in MODE_RADII}
     for start in range(0, len(val), 1024):
-        xy = torch.as_tensor(val.xy[start : start + 1024], dtype=torch.float32)
-        zeros = torch.zeros(len(xy))
+        xy = torch.as_tensor(val.xy[start : start + 1024], dtype=torch.float32, device=device)
+        zeros = torch.zeros(len(xy), device=device)
         x, center, R = goal_model.goal_inputs(
             xy[:, :obs_len], scene[start : start + 1024], scene_maps, goal_cfg, zeros, zeros.bool(), pred_len
         )
@@ -185,11 +196,12 @@ def main() -> None:
     )
     parser.add_argument("--root", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "fftool_goal_levers")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/goal_levers.csv"))
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (the levers beyond the CPU budget)")
     args = parser.parse_args()
     assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
-        rows = measure(args.lever, benchmark, args.profile, args.extra, args.root, args.rescore)
+        rows = measure(args.lever, benchmark, args.profile, args.extra, args.root, args.rescore, Runtime(args.device))
         new = not args.out.exists()
         with args.out.open("a", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
