@@ -219,3 +219,24 @@ def test_time_reversal_makes_the_first_observed_position_the_goal(
     end = 0 if reversal else -1
     distance = torch.cdist(seen, windows[:, end], compute_mode="donot_use_mm_for_euclid_dist").min(1).values
     assert seen.shape[0] > 0 and distance.max() < 1e-4
+
+
+def test_channels_last_weights_compute_what_the_default_layout_computes() -> None:
+    """Training runs the U-Net channels-last for speed; the function, and a reload into the default layout,
+    stay the same."""
+    torch.manual_seed(0)
+    model = goal_model.build_model(TINY, 11)
+    fast = goal_model.build_model(TINY, 11).to(memory_format=torch.channels_last)
+    fast.load_state_dict(model.state_dict())
+    assert fast.encoder[0][0].weight.is_contiguous(memory_format=torch.channels_last)
+    x = torch.randn(5, 11, TINY.crop_cells, TINY.crop_cells)
+    torch.testing.assert_close(fast(x), model(x), atol=1e-5, rtol=1e-5)
+    reloaded = goal_model.build_model(TINY, 11)
+    reloaded.load_state_dict(fast.state_dict())
+    torch.testing.assert_close(reloaded(x), model(x), atol=1e-5, rtol=1e-5)
+
+
+def test_the_trainer_holds_its_weights_channels_last(inputs: dict) -> None:
+    trainer = goal._trainer(TINY, SAMPLING, "zara1", inputs["windows"], inputs["maps"], torch.device("cpu"))
+    first = trainer.model.encoder[0][0].weight
+    assert first.is_contiguous(memory_format=torch.channels_last) and not first.is_contiguous()
