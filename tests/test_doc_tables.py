@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from fftool.reporting.doc_tables import gap_table, stage_seconds
+from fftool.reporting.doc_tables import gap_table, stage_seconds, training_times_table
 
 
 def test_the_gap_to_agentformer_is_each_variant_minus_the_baseline(tmp_path: Path) -> None:
@@ -28,3 +28,20 @@ def test_stage_seconds_sums_the_named_builds(tmp_path: Path) -> None:
     times = tmp_path / "times.csv"
     times.write_text("stage,benchmark,seconds,threads\ntracks,,0.2,2\nwindows,,0.5,2\ncvae dr,zara1,135.1,2\n")
     assert stage_seconds(times, ingest="tracks+windows", dr="cvae dr") == "ingest 0.7 s, dr 135 s"
+
+
+def test_training_times_count_threads_and_schedule_two_jobs(tmp_path: Path) -> None:
+    times = tmp_path / "times.csv"
+    times.write_text(
+        "stage,benchmark,seconds,threads,ranks\n"
+        "goal,zara1,600,1,1\ncvae dr,zara1,1200,2,1\n"  # 10 + 40: run as one-thread jobs, the 40 bounds
+        "goal,hotel,1800,1,1\ncvae dr,hotel,60,2,1\n"  # 30 + 2: two one-thread jobs take 30
+    )
+    table = training_times_table(times).splitlines()
+    assert table[0] == "| stage | hotel | zara1 | all |"
+    assert table[2:] == [
+        "| cvae dr | 2.0 | 40.0 | 42.0 |",
+        "| goal | 30.0 | 10.0 | 40.0 |",
+        "| **sum (thread-minutes)** | **32.0** | **50.0** | **82.0** |",
+        "| 2-job wall, ideal (min) | 30.0 | 40.0 | 70.0 |",
+    ]

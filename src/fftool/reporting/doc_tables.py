@@ -222,6 +222,24 @@ def gap_table(results_csv: Path | str) -> str:
     return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
 
 
+def training_times_table(stage_times_csv: Path | str, jobs: int = 2) -> str:
+    """Thread-minutes per trained stage and benchmark (build seconds × torch threads × ranks, from a
+    `tools/stage_times.py --csv` file), their sums, and the wall time an ideal `jobs`-way schedule of one-thread
+    builds would need per benchmark (the sum over `jobs`, or the longest build if that is larger)."""
+    frame = pd.read_csv(stage_times_csv, keep_default_na=False)
+    frame["minutes"] = frame["seconds"] * frame["threads"] * frame["ranks"] / 60
+    table = frame.pivot_table(index="stage", columns="benchmark", values="minutes", aggfunc="sum")
+    benchmarks = [b for b in BENCHMARKS if b in table.columns]
+    cell = lambda value: "" if pd.isna(value) else f"{value:.1f}"  # noqa: E731
+    rows = [[stage, *(cell(table.at[stage, b]) for b in benchmarks), cell(table.loc[stage].sum())]
+            for stage in table.index]  # fmt: skip
+    sums = table[benchmarks].sum()
+    wall = [max(sums[b] / jobs, table[b].max()) for b in benchmarks]
+    rows.append(["**sum (thread-minutes)**", *(f"**{sums[b]:.1f}**" for b in benchmarks), f"**{sums.sum():.1f}**"])
+    rows.append([f"{jobs}-job wall, ideal (min)", *(f"{w:.1f}" for w in wall), f"{sum(wall):.1f}"])
+    return _markdown(["stage", *benchmarks, "all"], rows)
+
+
 def stage_seconds(stage_times_csv: Path | str, **stages: str) -> str:
     """A sentence's "name 85 s, other 30 s": the build times of the named stages (their labels in a
     `tools/stage_times.py --csv` file; several labels joined by "+", and a label's builds on several
