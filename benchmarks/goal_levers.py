@@ -65,10 +65,6 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "steps_16x_more": (["goal.epochs=256"], []),
     "goalsar_widths": (["goal.widths=[32, 32, 64, 64, 64]"], []),
     "goalsar_widths_steps_4x": (["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64"], []),
-    "goalsar_widths_steps_4x_reversal": (
-        ["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64", "goal.time_reversal=0.5"],
-        [],
-    ),
 }
 MODE_RADII = (0, 1, 2)
 

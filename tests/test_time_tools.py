@@ -43,8 +43,8 @@ def store(tmp_path: Path) -> Path:
 
 def test_stage_times_sums_thread_minutes(store: Path, monkeypatch, capsys) -> None:
     out = run_tool("stage_times", ["--root", str(store), "--benchmarks", "zara1,zara2"], monkeypatch, capsys)
-    assert "| cvae baseline | 1.0 | 2.0 |" in out
-    assert "3.0 thread-minutes" in out
+    assert "| cvae baseline | 1.0 | 2.0 | 3.0 |" in out
+    assert "| **sum (thread-minutes)** | **1.0** | **2.0** | **3.0** |" in out
 
 
 def test_budget_curves_counts_thread_minutes(store: Path, monkeypatch, capsys) -> None:

@@ -222,11 +222,13 @@ def gap_table(results_csv: Path | str) -> str:
     return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
 
 
-def training_times_table(stage_times_csv: Path | str, jobs: int = 2) -> str:
+def training_times_table(stage_times: Path | str | pd.DataFrame, jobs: int = 2) -> str:
     """Thread-minutes per trained stage and benchmark (build seconds × torch threads × ranks, from a
-    `tools/stage_times.py --csv` file), their sums, and the wall time an ideal `jobs`-way schedule of one-thread
-    builds would need per benchmark (the sum over `jobs`, or the longest build if that is larger)."""
-    frame = pd.read_csv(stage_times_csv, keep_default_na=False)
+    `tools/stage_times.py --csv` file or its frame), their sums, and the wall time an ideal `jobs`-way
+    schedule of one-thread builds would need per benchmark (the sum over `jobs`, or the longest build if that
+    is larger)."""
+    given = isinstance(stage_times, pd.DataFrame)
+    frame = stage_times.copy() if given else pd.read_csv(stage_times, keep_default_na=False)
     frame["minutes"] = frame["seconds"] * frame["threads"] * frame["ranks"] / 60
     table = frame.pivot_table(index="stage", columns="benchmark", values="minutes", aggfunc="sum")
     benchmarks = [b for b in BENCHMARKS if b in table.columns]
