@@ -72,6 +72,7 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/bench_forces.py", *session.posargs)
     session.run("python", "benchmarks/bench_cvae.py", "--by-agents", "20")
     session.run("python", "benchmarks/bench_evaluate.py")
+    session.run("python", "benchmarks/bench_goal_step.py")
 
 
 @nox.session
