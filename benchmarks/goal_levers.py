@@ -184,6 +184,25 @@ def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, devi
     }
 
 
+def _append(out: Path, rows: list[dict[str, object]]) -> None:
+    """Append `rows` to the CSV; a file written before a column was added is rewritten with it (empty)."""
+    fields = list(rows[0])
+    kept: list[dict[str, str]] = []
+    if out.exists():
+        with out.open(newline="") as handle:
+            reader = csv.DictReader(handle)
+            if reader.fieldnames != fields:
+                kept = list(reader)
+                fields = [*(reader.fieldnames or []), *(f for f in fields if f not in (reader.fieldnames or []))]
+    if kept or not out.exists():
+        with out.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=fields, restval="")
+            writer.writeheader()
+            writer.writerows(kept)
+    with out.open("a", newline="") as handle:
+        csv.DictWriter(handle, fieldnames=fields, restval="").writerows(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--lever", required=True, choices=list(LEVERS), help="one lever per process (patches stay)")
@@ -201,12 +220,7 @@ def main() -> None:
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
         rows = measure(args.lever, benchmark, args.profile, args.extra, args.root, args.rescore, Runtime(args.device))
-        new = not args.out.exists()
-        with args.out.open("a", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-            if new:
-                writer.writeheader()
-            writer.writerows(rows)
+        _append(args.out, rows)
         for row in rows:
             print(
                 f"{args.lever:>16} {benchmark:>6} r={row['mode_radius_cells']}  @20 {row['val_goal_fde@20_m']:.3f}"
