@@ -20,11 +20,10 @@ import torch
 from fftool import pipeline
 from fftool.artifacts.store import ArtifactStore
 from fftool.config import load_config
-from fftool.learning.batches import load_agent_windows
-from fftool.learning.goal_model import build_model, goal_inputs, goal_loss, input_channels
-from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
+from fftool.learning.goal_model import goal_inputs, goal_loss
 from fftool.learning.training import make_optimizer
 from fftool.science.heatmaps import world_to_cells
+from fftool.stages.goal import _trainer
 
 
 def main() -> None:
@@ -36,23 +35,18 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     cfg = load_config(args.profile)
-    built = pipeline.run(
-        cfg, ArtifactStore(args.root), ["windows", "maps"], runtime=pipeline.Runtime(), benchmark=args.benchmark
-    )
-    windows, maps = built["windows"], built["maps"]
+    store = ArtifactStore(args.root)
+    built = pipeline.run(cfg, store, ["windows", "maps"], runtime=pipeline.Runtime(), benchmark=args.benchmark)
     goal = cfg.goal
-    obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
-    train = load_agent_windows(windows, args.benchmark, "train", stride=goal.train_stride)
-    scene_maps = load_goal_scenes(maps, windows, args.benchmark, goal)
-    scenes = goal_scene_index(scene_maps, train, goal, cross_fit=True)
-    xy_all = torch.as_tensor(train.xy, dtype=torch.float32)
-    torch.manual_seed(goal.seed)
-    reference = build_model(goal, input_channels(goal, obs_len, scene_maps.channels))
-    layouts = {"default": torch.contiguous_format, "channels_last": torch.channels_last}
-    models = {name: copy.deepcopy(reference).to(memory_format=fmt) for name, fmt in layouts.items()}
+    # the training stage's own data and model (channels-last), and a copy of the model in the default layout
+    trainer = _trainer(goal, cfg.goals, args.benchmark, built["windows"], built["maps"], torch.device("cpu"))
+    obs_len, pred_len, scenes, scene_maps = trainer.obs_len, trainer.pred_len, trainer.train_scene, trainer.maps
+    xy_all = trainer.train_xy
+    models = {"channels_last": trainer.model}
+    models["default"] = copy.deepcopy(trainer.model).to(memory_format=torch.contiguous_format)
     optimizers = {name: make_optimizer(m, goal.optimizer, goal.lr, goal.weight_decay) for name, m in models.items()}
+    seconds: dict[str, list[float]] = {name: [] for name in models}
     gen = torch.Generator().manual_seed(0)
-    seconds: dict[str, list[float]] = {name: [] for name in layouts}
     largest = 0.0
     for step in range(args.steps + 3):  # the first three warm up
         index = torch.randint(len(xy_all), (goal.batch_size,), generator=gen)

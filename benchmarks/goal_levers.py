@@ -30,7 +30,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import GoalsConfig, load_config
 from fftool.dataset import scenes
 from fftool.dataset.scenes import BENCHMARKS
-from fftool.learning import goal_model
+from fftool.learning import devices, goal_model
 from fftool.learning.batches import load_agent_windows
 from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import generator
@@ -97,7 +97,7 @@ def measure(
         _patch(name)
     store = ArtifactStore(root / lever)
     started = time.perf_counter()
-    device = torch.device(runtime.device)
+    device = devices.resolve(runtime.device)
     if rescore:  # the lever's models as trained, scored with other goal sampling
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
