@@ -7,6 +7,11 @@ softargmax over 3² and 5² cells). No test window is read. Appends one CSV row 
 
     python benchmarks/goal_levers.py --lever before --benchmarks all --out benchmarks/results/goal_levers.csv
 
+With `--holdout`, the validation is a place held out of training instead of the val part: benchmark B's
+goal U-Net trains on B's train part without the windows of the place HOLDOUT[B] (never B's test scene), picks
+its best epoch on that place's windows (B's train and val parts), and is scored on all of them. That is the
+leave-one-out situation the test meets (a scene the module never saw), measured without a test window.
+
 One lever per process. "before" puts the crop centre back on a cell corner (patch `corner`) and the mode
 back on the argmax cell; "centre" only the second; the other levers change one thing from "before".
 "profile" is the profile file as it is (the shipped recipe), "profile_uni_map" the same with univ's map for
@@ -21,6 +26,7 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
 import tomllib
 import torch
 
@@ -30,8 +36,8 @@ from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import GoalsConfig, load_config
 from fftool.dataset import scenes
 from fftool.dataset.scenes import BENCHMARKS
-from fftool.learning import devices, goal_model
-from fftool.learning.batches import load_agent_windows
+from fftool.learning import batches, devices, goal_model
+from fftool.learning.batches import AgentWindows, load_agent_windows
 from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import generator
 from fftool.pipeline import Runtime
@@ -68,6 +74,17 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
 }
 MODE_RADII = (0, 1, 2)
 
+# --holdout: the place each benchmark's validation holds out of its training part: one of its own training places,
+# never its test scene, whose removal leaves most of the training windows (univ's place is half of every other
+# benchmark's, and eth's 300 windows are too few to score). univ's place includes uni_examples, zara's all three files.
+PLACES: dict[str, tuple[str, ...]] = {
+    "eth": ("biwi_eth",),
+    "hotel": ("biwi_hotel",),
+    "univ": ("students001", "students003", "uni_examples"),
+    "zara": ("crowds_zara01", "crowds_zara02", "crowds_zara03"),
+}
+HOLDOUT: dict[str, str] = {"eth": "hotel", "hotel": "zara", "univ": "hotel", "zara1": "hotel", "zara2": "hotel"}
+
 
 def _patch(name: str) -> None:
     if name == "corner":
@@ -77,6 +94,28 @@ def _patch(name: str) -> None:
         scenes.SOURCE_SCENE["uni_examples"] = "univ"
     else:
         raise SystemExit(f"unknown patch {name!r}")
+
+
+def _hold_out(place: str) -> None:
+    """Make the goal stage (and this script's scoring) read B's train part without `place`, and `place`'s windows
+    of B's train and val parts as the validation part."""
+    original, sources = batches.load_agent_windows, PLACES[place]
+
+    def load(windows: Artifact, benchmark: str, part: str, stride: int = 1) -> AgentWindows:
+        if part == "train":
+            train = original(windows, benchmark, "train", stride)
+            return train.subset(np.flatnonzero(~np.isin(train.source, sources)))
+        if part != "val":
+            raise SystemExit(f"--holdout reads no {part} part")
+        held = [original(windows, benchmark, p, stride) for p in ("train", "val")]
+        held = [w.subset(np.flatnonzero(np.isin(w.source, sources))) for w in held]
+        fields = ("xy", "source", "first_step", "window_id", "ped_id", "row")
+        return AgentWindows(*(np.concatenate([getattr(w, f) for w in held]) for f in fields))
+
+    import fftool.stages.goal as goal_stage
+
+    goal_stage.load_agent_windows = load
+    globals()["load_agent_windows"] = load
 
 
 def _corner_world_to_cells(points, center, R, res, size):  # type: ignore[no-untyped-def]
@@ -90,12 +129,21 @@ def _corner_cells_to_world(cells, center, R, res, size):  # type: ignore[no-unty
 
 
 def measure(
-    lever: str, benchmark: str, profile: Path, extra: list[str], root: Path, rescore: list[str], runtime: Runtime
+    lever: str,
+    benchmark: str,
+    profile: Path,
+    extra: list[str],
+    root: Path,
+    rescore: list[str],
+    runtime: Runtime,
+    holdout: bool = False,
 ) -> list[dict[str, object]]:
     overrides, patches = LEVERS[lever]
     for name in patches:
         _patch(name)
-    store = ArtifactStore(root / lever)
+    if holdout:  # its own store: the goal artifact's fingerprint does not know which windows it read
+        _hold_out(HOLDOUT[benchmark])
+    store = ArtifactStore(root / (f"{lever}@holdout-{HOLDOUT[benchmark]}" if holdout else lever))
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if rescore:  # the lever's models as trained, scored with other goal sampling
@@ -119,6 +167,7 @@ def measure(
             {
                 "lever": " ".join([lever, *rescore]),
                 "benchmark": benchmark,
+                "validation": f"held-out {HOLDOUT[benchmark]}" if holdout else "val part",
                 "mode_radius_cells": radius,
                 "val_goal_fde@20_m": round(fde_k, 4),
                 "val_goal_fde@1_m": round(fde_1, 4),
@@ -215,11 +264,14 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "fftool_goal_levers")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/goal_levers.csv"))
     parser.add_argument("--device", default="cpu", help="cpu or cuda (the levers beyond the CPU budget)")
+    parser.add_argument("--holdout", action="store_true", help="validate on a place held out of training (HOLDOUT)")
     args = parser.parse_args()
     assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
-        rows = measure(args.lever, benchmark, args.profile, args.extra, args.root, args.rescore, Runtime(args.device))
+        rows = measure(
+            args.lever, benchmark, args.profile, args.extra, args.root, args.rescore, Runtime(args.device), args.holdout
+        )
         _append(args.out, rows)
         for row in rows:
             print(
