@@ -36,7 +36,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import GoalsConfig, load_config
 from fftool.dataset import scenes
 from fftool.dataset.scenes import BENCHMARKS
-from fftool.learning import batches, devices, goal_model
+from fftool.learning import batches, devices, goal_model, protocols
 from fftool.learning.batches import AgentWindows, load_agent_windows
 from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
 from fftool.learning.training import generator
@@ -71,6 +71,8 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "steps_16x_more": (["goal.epochs=256"], []),
     "goalsar_widths": (["goal.widths=[32, 32, 64, 64, 64]"], []),
     "goalsar_widths_steps_4x": (["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64"], []),
+    # No network: the constant-velocity reference (CV@K and CV@1 as sample-goals draws them) on the same windows.
+    "constant_velocity": ([], []),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -146,6 +148,9 @@ def measure(
     store = ArtifactStore(root / (f"{lever}@holdout-{HOLDOUT[benchmark]}" if holdout else lever))
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
+    if lever == "constant_velocity":
+        windows = pipeline.run(load_config(profile, extra), store, ["windows"], runtime=runtime)["windows"]
+        return _constant_velocity_rows(windows, benchmark, load_config(profile, extra).goals, holdout)
     if rescore:  # the lever's models as trained, scored with other goal sampling
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
@@ -155,12 +160,15 @@ def measure(
         goal, windows, maps = built["goal"], built["windows"], built["maps"]
     seconds = time.perf_counter() - started
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
-    if rescore:
-        sampling = GoalsConfig.model_validate(sampling.model_dump() | _values(rescore, "goals"))
+    cv_goals = 0
+    if rescore:  # goals.cv_goals=m is no profile key: the last m of the K goals become constant-velocity goals
+        values = _values(rescore, "goals")
+        cv_goals = int(values.pop("cv_goals", 0))  # type: ignore[call-overload]
+        sampling = GoalsConfig.model_validate(sampling.model_dump() | values)
     scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg).to(device)
     val = load_agent_windows(windows, benchmark, "val")
     obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
-    fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device)
+    fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals)
     rows = []
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
@@ -184,6 +192,32 @@ def measure(
     return rows
 
 
+def _constant_velocity_rows(
+    windows: Artifact, benchmark: str, sampling: GoalsConfig, holdout: bool
+) -> list[dict[str, object]]:
+    """CV@K and CV@1 on the validation windows, one row per mode radius (a network-free reference)."""
+    val = load_agent_windows(windows, benchmark, "val")
+    obs_len = int(windows.manifest.stats["obs_len"])
+    xy = torch.as_tensor(val.xy, dtype=torch.float32)
+    gen = generator(sampling.seed, torch.device("cpu"))
+    goals = protocols.constant_velocity(
+        xy[:, None, :obs_len], xy.shape[1] - obs_len, sampling.k, sampling.cv_angle_std_deg, sampling.cv_speed_std, gen
+    )[:, :, 0, -1]  # fmt: skip
+    errors = torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1)
+    return [
+        {
+            "lever": "constant_velocity",
+            "benchmark": benchmark,
+            "validation": f"held-out {HOLDOUT[benchmark]}" if holdout else "val part",
+            "mode_radius_cells": radius,
+            "val_goal_fde@20_m": round(float(errors.min(1).values.mean()), 4),
+            "val_goal_fde@1_m": round(float(errors[:, 0].mean()), 4),
+            "val_agent_windows": len(val),
+        }
+        for radius in MODE_RADII
+    ]
+
+
 def _trained(store: ArtifactStore, benchmark: str) -> Artifact:
     """The newest goal U-Net of `benchmark` in a lever's store."""
     found = [a for a in store.list("goal") if a.manifest.params.get("benchmark") == benchmark]
@@ -205,10 +239,11 @@ def _values(assignments: list[str], section: str) -> dict[str, object]:
 
 
 @torch.no_grad()
-def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device) -> dict[int, tuple[float, float]]:  # type: ignore[no-untyped-def]
+def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals=0) -> dict[int, tuple[float, float]]:  # type: ignore[no-untyped-def]
     """Goal-FDE@K and @1 per mode radius, as `goal_model.evaluate` computes them, with the TTST draws made once:
-    the mode takes no random draw, so only goal 1 differs between radii."""
-    gen = generator(goal_cfg.seed, device)
+    the mode takes no random draw, so only goal 1 differs between radii. With cv_goals = m, goals K-m+1..K are
+    replaced by m constant-velocity goals (the first exact, the others turned and scaled as CV@K's)."""
+    gen, cv_gen = generator(goal_cfg.seed, device), generator(sampling.seed, device)
     scene = goal_scene_index(scene_maps, val, goal_cfg, cross_fit=False).to(device)
     errors: dict[int, list[torch.Tensor]] = {radius: [] for radius in MODE_RADII}
     for start in range(0, len(val), 1024):
@@ -223,9 +258,15 @@ def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, devi
             threshold=sampling.threshold, samples=sampling.samples, iterations=sampling.kmeans_iterations,
             generator=gen,
         )  # fmt: skip
+        if cv_goals:
+            cv = protocols.constant_velocity(
+                xy[:, None, :obs_len], pred_len, cv_goals, sampling.cv_angle_std_deg, sampling.cv_speed_std, cv_gen
+            )[:, :, 0, -1]  # fmt: skip
         for radius in MODE_RADII:
             cells[:, 0] = heatmaps.refine_mode(logits, radius, sampling.temperature)
             goals = heatmaps.cells_to_world(cells, center, R, goal_cfg.resolution_m, goal_cfg.crop_cells)
+            if cv_goals:
+                goals[:, -cv_goals:] = cv
             errors[radius].append(torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1))
     return {
         radius: (float(torch.cat(e).min(1).values.mean()), float(torch.cat(e)[:, 0].mean()))
@@ -276,7 +317,7 @@ def main() -> None:
         for row in rows:
             print(
                 f"{args.lever:>16} {benchmark:>6} r={row['mode_radius_cells']}  @20 {row['val_goal_fde@20_m']:.3f}"
-                f"  @1 {row['val_goal_fde@1_m']:.3f}  {row['build_s']} s",
+                f"  @1 {row['val_goal_fde@1_m']:.3f}  {row.get('build_s', '')} s",
                 flush=True,
             )
 
