@@ -239,7 +239,9 @@ def _values(assignments: list[str], section: str) -> dict[str, object]:
 
 
 @torch.no_grad()
-def _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals=0) -> dict[int, tuple[float, float]]:  # type: ignore[no-untyped-def]
+def _val_fde(  # type: ignore[no-untyped-def]
+    model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals=0
+) -> dict[int, tuple[float, float]]:
     """Goal-FDE@K and @1 per mode radius, as `goal_model.evaluate` computes them, with the TTST draws made once:
     the mode takes no random draw, so only goal 1 differs between radii. With cv_goals = m, goals K-m+1..K are
     replaced by m constant-velocity goals (the first exact, the others turned and scaled as CV@K's)."""
