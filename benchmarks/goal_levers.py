@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import tomllib
 import torch
 
@@ -139,6 +140,7 @@ def measure(
     rescore: list[str],
     runtime: Runtime,
     holdout: bool = False,
+    step_scale: float = 1.0,
 ) -> list[dict[str, object]]:
     overrides, patches = LEVERS[lever]
     for name in patches:
@@ -150,8 +152,8 @@ def measure(
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":
         windows = pipeline.run(load_config(profile, extra), store, ["windows"], runtime=runtime)["windows"]
-        return _constant_velocity_rows(windows, benchmark, load_config(profile, extra).goals, holdout)
-    if rescore:  # the lever's models as trained, scored with other goal sampling
+        return _constant_velocity_rows(windows, benchmark, load_config(profile, extra).goals, holdout, step_scale)
+    if rescore or step_scale != 1:  # the lever's models as trained, scored with other sampling or windows
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
     else:
@@ -167,15 +169,18 @@ def measure(
         sampling = GoalsConfig.model_validate(sampling.model_dump() | values)
     scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg).to(device)
     val = load_agent_windows(windows, benchmark, "val")
+    if step_scale != 1:
+        val = _resampled(windows, val, step_scale)
     obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
     fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals)
     rows = []
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
             {
-                "lever": " ".join([lever, *rescore]),
+                "lever": " ".join([lever, *rescore, *([f"step_scale={step_scale:.4g}"] if step_scale != 1 else [])]),
                 "benchmark": benchmark,
-                "validation": f"held-out {HOLDOUT[benchmark]}" if holdout else "val part",
+                "validation": (f"held-out {HOLDOUT[benchmark]}" if holdout else "val part")
+                + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else ""),
                 "mode_radius_cells": radius,
                 "val_goal_fde@20_m": round(fde_k, 4),
                 "val_goal_fde@1_m": round(fde_1, 4),
@@ -193,10 +198,11 @@ def measure(
 
 
 def _constant_velocity_rows(
-    windows: Artifact, benchmark: str, sampling: GoalsConfig, holdout: bool
+    windows: Artifact, benchmark: str, sampling: GoalsConfig, holdout: bool, step_scale: float
 ) -> list[dict[str, object]]:
     """CV@K and CV@1 on the validation windows, one row per mode radius (a network-free reference)."""
     val = load_agent_windows(windows, benchmark, "val")
+    val = _resampled(windows, val, step_scale) if step_scale != 1 else val
     obs_len = int(windows.manifest.stats["obs_len"])
     xy = torch.as_tensor(val.xy, dtype=torch.float32)
     gen = generator(sampling.seed, torch.device("cpu"))
@@ -206,9 +212,10 @@ def _constant_velocity_rows(
     errors = torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1)
     return [
         {
-            "lever": "constant_velocity",
+            "lever": "constant_velocity" + (f" step_scale={step_scale:.4g}" if step_scale != 1 else ""),
             "benchmark": benchmark,
-            "validation": f"held-out {HOLDOUT[benchmark]}" if holdout else "val part",
+            "validation": (f"held-out {HOLDOUT[benchmark]}" if holdout else "val part")
+            + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else ""),
             "mode_radius_cells": radius,
             "val_goal_fde@20_m": round(float(errors.min(1).values.mean()), 4),
             "val_goal_fde@1_m": round(float(errors[:, 0].mean()), 4),
@@ -216,6 +223,35 @@ def _constant_velocity_rows(
         }
         for radius in MODE_RADII
     ]
+
+
+def _resampled(windows: Artifact, like: AgentWindows, scale: float) -> AgentWindows:
+    """Windows of the tracks behind `like` (its sources, the train and val splits), resampled at one step every
+    `scale` recorded steps by linear interpolation, from every start where a pedestrian is seen throughout: with
+    scale 5/3 another scene's 0.4 s steps become eth's 0.67 s (12 steps are 8 s), and, as on eth, only the
+    pedestrians who stay in view that long keep a window."""
+    store = ArtifactStore(windows.path.parent.parent)
+    tracks = pq.read_table(
+        store.lookup("tracks", windows.manifest.sources["tracks"]).file("tracks.parquet")
+    ).to_pandas()
+    tracks = tracks[tracks["source"].isin(set(like.source)) & tracks["split"].isin(["train", "val"])]
+    length = int(windows.manifest.stats["window_len"])
+    offsets = np.arange(length) * scale
+    xy, source, ped = [], [], []
+    for (name, _, pedestrian), track in tracks.sort_values("step").groupby(
+        ["source", "split", "ped_id"], observed=True
+    ):
+        steps, points = track["step"].to_numpy(), track[["x", "y"]].to_numpy()
+        for run in np.split(np.arange(len(steps)), np.flatnonzero(np.diff(steps) != 1) + 1):
+            starts = np.arange(len(run) - offsets[-1]) if len(run) > offsets[-1] else np.arange(0)
+            times = starts[:, None] + offsets  # (S, length) in the run's recorded steps
+            at = np.arange(len(run))
+            xy.append(np.stack([np.interp(times, at, points[run, d]) for d in (0, 1)], -1))
+            source += [name] * len(starts)
+            ped += [pedestrian] * len(starts)
+    count = len(source)
+    minus = np.full(count, -1)
+    return AgentWindows(np.concatenate(xy), np.array(source), minus, minus, np.array(ped), minus)
 
 
 def _trained(store: ArtifactStore, benchmark: str) -> Artifact:
@@ -308,12 +344,26 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/goal_levers.csv"))
     parser.add_argument("--device", default="cpu", help="cpu or cuda (the levers beyond the CPU budget)")
     parser.add_argument("--holdout", action="store_true", help="validate on a place held out of training (HOLDOUT)")
+    parser.add_argument(
+        "--step-scale",
+        type=float,
+        default=1.0,
+        help="score trained models on windows resampled at this step (5/3: eth's)",
+    )
     args = parser.parse_args()
     assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
         rows = measure(
-            args.lever, benchmark, args.profile, args.extra, args.root, args.rescore, Runtime(args.device), args.holdout
+            args.lever,
+            benchmark,
+            args.profile,
+            args.extra,
+            args.root,
+            args.rescore,
+            Runtime(args.device),
+            args.holdout,
+            args.step_scale,
         )
         _append(args.out, rows)
         for row in rows:
