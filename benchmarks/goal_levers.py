@@ -177,10 +177,9 @@ def measure(
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
             {
-                "lever": " ".join([lever, *rescore, *([f"step_scale={step_scale:.4g}"] if step_scale != 1 else [])]),
+                "lever": _label(lever, rescore, step_scale),
                 "benchmark": benchmark,
-                "validation": (f"held-out {HOLDOUT[benchmark]}" if holdout else "val part")
-                + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else ""),
+                "validation": _validation(benchmark, holdout, step_scale),
                 "mode_radius_cells": radius,
                 "val_goal_fde@20_m": round(fde_k, 4),
                 "val_goal_fde@1_m": round(fde_1, 4),
@@ -195,6 +194,17 @@ def measure(
             }
         )
     return rows
+
+
+def _label(lever: str, rescore: list[str], step_scale: float) -> str:
+    """The CSV's lever column: the lever, then how its models were rescored."""
+    return " ".join([lever, *rescore, *([f"step_scale={step_scale:.4g}"] if step_scale != 1 else [])])
+
+
+def _validation(benchmark: str, holdout: bool, step_scale: float) -> str:
+    """The CSV's validation column: which windows were scored."""
+    where = f"held-out {HOLDOUT[benchmark]}" if holdout else "val part"
+    return where + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else "")
 
 
 def _constant_velocity_rows(
@@ -212,10 +222,9 @@ def _constant_velocity_rows(
     errors = torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1)
     return [
         {
-            "lever": "constant_velocity" + (f" step_scale={step_scale:.4g}" if step_scale != 1 else ""),
+            "lever": _label("constant_velocity", [], step_scale),
             "benchmark": benchmark,
-            "validation": (f"held-out {HOLDOUT[benchmark]}" if holdout else "val part")
-            + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else ""),
+            "validation": _validation(benchmark, holdout, step_scale),
             "mode_radius_cells": radius,
             "val_goal_fde@20_m": round(float(errors.min(1).values.mean()), 4),
             "val_goal_fde@1_m": round(float(errors[:, 0].mean()), 4),
@@ -351,6 +360,8 @@ def main() -> None:
         help="score trained models on windows resampled at this step (5/3: eth's)",
     )
     args = parser.parse_args()
+    if args.step_scale != 1 and not args.holdout:
+        parser.error("--step-scale resamples a held-out place's tracks: it needs --holdout")
     assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
