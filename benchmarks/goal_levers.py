@@ -252,7 +252,7 @@ def _resampled(windows: Artifact, like: AgentWindows, scale: float) -> AgentWind
     ):
         steps, points = track["step"].to_numpy(), track[["x", "y"]].to_numpy()
         for run in np.split(np.arange(len(steps)), np.flatnonzero(np.diff(steps) != 1) + 1):
-            starts = np.arange(len(run) - offsets[-1]) if len(run) > offsets[-1] else np.arange(0)
+            starts = np.arange(max(int(np.floor(len(run) - 1 - offsets[-1] + 1e-9)) + 1, 0))  # no step past the run
             times = starts[:, None] + offsets  # (S, length) in the run's recorded steps
             at = np.arange(len(run))
             xy.append(np.stack([np.interp(times, at, points[run, d]) for d in (0, 1)], -1))

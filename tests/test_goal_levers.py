@@ -1,0 +1,69 @@
+"""benchmarks/goal_levers.py's held-out validation: which windows train and which validate, and the tracks
+resampled to another step. Choices are made on these windows, so a test window must never reach them."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from fftool.artifacts.store import ArtifactStore
+from fftool.learning import batches
+from fftool.stages import goal as goal_stage
+
+SCRIPT = Path(__file__).parents[1] / "benchmarks" / "goal_levers.py"
+
+
+@pytest.fixture
+def levers(monkeypatch: pytest.MonkeyPatch) -> ModuleType:
+    """The script as a module; what `--holdout` patches is put back after the test."""
+    spec = importlib.util.spec_from_file_location("goal_levers", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(goal_stage, "load_agent_windows", goal_stage.load_agent_windows)
+    return module
+
+
+def test_a_held_out_place_leaves_training_and_is_the_validation(levers: ModuleType, built_store: ArtifactStore) -> None:
+    windows = built_store.list("windows")[0]
+    place = levers.HOLDOUT["eth"]
+    assert place == "hotel"
+    levers._hold_out(place)
+    train = goal_stage.load_agent_windows(windows, "eth", "train")
+    val = goal_stage.load_agent_windows(windows, "eth", "val")
+    parts = {part: batches.load_agent_windows(windows, "eth", part) for part in ("train", "val")}
+    assert "biwi_hotel" not in set(train.source) and len(train) > 0
+    assert set(train.source) == set(parts["train"].source) - {"biwi_hotel"}
+    assert set(val.source) == {"biwi_hotel"}
+    held = [w.source == "biwi_hotel" for w in parts.values()]
+    assert len(val) == sum(int(h.sum()) for h in held)  # the place's windows of both parts, nothing else
+    assert sorted(val.row) == sorted(np.concatenate([w.row[h] for w, h in zip(parts.values(), held)]))
+    with pytest.raises(SystemExit, match="no test part"):
+        goal_stage.load_agent_windows(windows, "eth", "test")
+
+
+def test_tracks_resampled_at_another_step_interpolate_within_each_track(
+    levers: ModuleType, built_store: ArtifactStore
+) -> None:
+    windows = built_store.list("windows")[0]
+    like = batches.load_agent_windows(windows, "eth", "train")
+    like = like.subset(np.flatnonzero(like.source == "biwi_hotel"))
+    resampled = levers._resampled(windows, like, 1.5)
+    tracks = pq.read_table(built_store.lookup("tracks", windows.manifest.sources["tracks"]).file("tracks.parquet"))
+    tracks = tracks.to_pandas()
+    hotel = tracks[(tracks["source"] == "biwi_hotel") & tracks["split"].isin(["train", "val"])]
+    # 20 steps of 1.5 recorded steps span 28.5 steps: of the synthetic walkers' train tracks (30, 29 and 28 steps)
+    # only the longest holds one window, from its first step; the 20-step val tracks hold none.
+    lengths = hotel.groupby(["split", "ped_id"]).size()
+    assert lengths.max() == 30 and (lengths == 30).sum() == 1
+    assert len(resampled) == 1 and set(resampled.source) == {"biwi_hotel"}
+    (split, ped), _ = next((key, n) for key, n in lengths.items() if n == 30)
+    points = hotel[(hotel["split"] == split) & (hotel["ped_id"] == ped)].sort_values("step")[["x", "y"]].to_numpy()
+    expected = [
+        points[int(t)] if t == int(t) else (points[int(t)] + points[int(t) + 1]) / 2 for t in np.arange(20) * 1.5
+    ]
+    np.testing.assert_allclose(resampled.xy[0], np.array(expected))  # the last at 28.5: between steps 28 and 29
