@@ -32,7 +32,7 @@ import tomllib
 import torch
 
 from fftool import pipeline
-from fftool.artifacts.schema import VERSIONS
+from fftool.artifacts.schema import TRACKS_FILE, VERSIONS
 from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import GoalsConfig, load_config
 from fftool.dataset import scenes
@@ -151,8 +151,9 @@ def measure(
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":
-        windows = pipeline.run(load_config(profile, extra), store, ["windows"], runtime=runtime)["windows"]
-        return _constant_velocity_rows(windows, benchmark, load_config(profile, extra).goals, holdout, step_scale)
+        cfg = load_config(profile, extra)
+        windows = pipeline.run(cfg, store, ["windows"], runtime=runtime)["windows"]
+        return _constant_velocity_rows(windows, benchmark, cfg.goals, holdout, step_scale)
     if rescore or step_scale != 1:  # the lever's models as trained, scored with other sampling or windows
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
@@ -207,6 +208,16 @@ def _validation(benchmark: str, holdout: bool, step_scale: float) -> str:
     return where + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else "")
 
 
+def _cv_goals(
+    xy: torch.Tensor, obs_len: int, pred_len: int, k: int, sampling: GoalsConfig, gen: torch.Generator
+) -> torch.Tensor:
+    """(M, k, 2) constant-velocity end points of windows xy (M, L, 2), drawn as sample-goals' CV@K draws them."""
+    futures = protocols.constant_velocity(
+        xy[:, None, :obs_len], pred_len, k, sampling.cv_angle_std_deg, sampling.cv_speed_std, gen
+    )
+    return futures[:, :, 0, -1]
+
+
 def _constant_velocity_rows(
     windows: Artifact, benchmark: str, sampling: GoalsConfig, holdout: bool, step_scale: float
 ) -> list[dict[str, object]]:
@@ -216,9 +227,7 @@ def _constant_velocity_rows(
     obs_len = int(windows.manifest.stats["obs_len"])
     xy = torch.as_tensor(val.xy, dtype=torch.float32)
     gen = generator(sampling.seed, torch.device("cpu"))
-    goals = protocols.constant_velocity(
-        xy[:, None, :obs_len], xy.shape[1] - obs_len, sampling.k, sampling.cv_angle_std_deg, sampling.cv_speed_std, gen
-    )[:, :, 0, -1]  # fmt: skip
+    goals = _cv_goals(xy, obs_len, xy.shape[1] - obs_len, sampling.k, sampling, gen)
     errors = torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1)
     return [
         {
@@ -239,28 +248,27 @@ def _resampled(windows: Artifact, like: AgentWindows, scale: float) -> AgentWind
     `scale` recorded steps by linear interpolation, from every start where a pedestrian is seen throughout: with
     scale 5/3 another scene's 0.4 s steps become eth's 0.67 s (12 steps are 8 s), and, as on eth, only the
     pedestrians who stay in view that long keep a window."""
-    store = ArtifactStore(windows.path.parent.parent)
-    tracks = pq.read_table(
-        store.lookup("tracks", windows.manifest.sources["tracks"]).file("tracks.parquet")
-    ).to_pandas()
-    tracks = tracks[tracks["source"].isin(set(like.source)) & tracks["split"].isin(["train", "val"])]
-    length = int(windows.manifest.stats["window_len"])
-    offsets = np.arange(length) * scale
-    xy, source, ped = [], [], []
-    for (name, _, pedestrian), track in tracks.sort_values("step").groupby(
-        ["source", "split", "ped_id"], observed=True
-    ):
-        steps, points = track["step"].to_numpy(), track[["x", "y"]].to_numpy()
-        for run in np.split(np.arange(len(steps)), np.flatnonzero(np.diff(steps) != 1) + 1):
-            starts = np.arange(max(int(np.floor(len(run) - 1 - offsets[-1] + 1e-9)) + 1, 0))  # no step past the run
-            times = starts[:, None] + offsets  # (S, length) in the run's recorded steps
-            at = np.arange(len(run))
-            xy.append(np.stack([np.interp(times, at, points[run, d]) for d in (0, 1)], -1))
-            source += [name] * len(starts)
-            ped += [pedestrian] * len(starts)
-    count = len(source)
-    minus = np.full(count, -1)
-    return AgentWindows(np.concatenate(xy), np.array(source), minus, minus, np.array(ped), minus)
+    tracks_artifact = ArtifactStore(windows.path.parent.parent).lookup("tracks", windows.manifest.sources["tracks"])
+    sources = sorted(set(like.source))
+    filters = [("source", "in", sources), ("split", "in", ["train", "val"])]
+    tracks = pq.read_table(tracks_artifact.file(TRACKS_FILE), filters=filters).to_pandas()
+    track = tracks.groupby(["source", "split", "ped_id"], observed=True).ngroup().to_numpy()
+    order = np.lexsort((tracks["step"].to_numpy(), track))
+    track, step = track[order], tracks["step"].to_numpy()[order]
+    points = tracks[["x", "y"]].to_numpy()[order]
+    # rows in runs of consecutive steps of one track (as dataset.windowing.slice_sequence), each row's run's last row
+    new_run = np.r_[True, (track[1:] != track[:-1]) | (step[1:] != step[:-1] + 1)]
+    run_last = np.r_[np.flatnonzero(new_run)[1:] - 1, len(step) - 1][np.cumsum(new_run) - 1]
+    offsets = np.arange(int(windows.manifest.stats["window_len"])) * scale
+    starts = np.flatnonzero(run_last - np.arange(len(step)) >= offsets[-1] - 1e-9)  # no step past the run
+    times = starts[:, None] + offsets  # (S, length) in sorted rows
+    below = np.floor(times).astype(np.int64)
+    above = np.minimum(below + 1, run_last[starts][:, None])
+    fraction = (times - below)[..., None]
+    xy = points[below] + (points[above] - points[below]) * fraction
+    minus = np.full(len(starts), -1)
+    source = tracks["source"].astype(str).to_numpy()[order][starts]
+    return AgentWindows(xy, source, minus, minus, tracks["ped_id"].to_numpy()[order][starts], minus)
 
 
 def _trained(store: ArtifactStore, benchmark: str) -> Artifact:
@@ -306,9 +314,7 @@ def _val_fde(  # type: ignore[no-untyped-def]
             generator=gen,
         )  # fmt: skip
         if cv_goals:
-            cv = protocols.constant_velocity(
-                xy[:, None, :obs_len], pred_len, cv_goals, sampling.cv_angle_std_deg, sampling.cv_speed_std, cv_gen
-            )[:, :, 0, -1]  # fmt: skip
+            cv = _cv_goals(xy, obs_len, pred_len, cv_goals, sampling, cv_gen)
         for radius in MODE_RADII:
             cells[:, 0] = heatmaps.refine_mode(logits, radius, sampling.temperature)
             goals = heatmaps.cells_to_world(cells, center, R, goal_cfg.resolution_m, goal_cfg.crop_cells)

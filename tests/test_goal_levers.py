@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from fftool.artifacts.schema import TRACKS_FILE
 from fftool.artifacts.store import ArtifactStore
 from fftool.learning import batches
 from fftool.stages import goal as goal_stage
@@ -53,7 +54,7 @@ def test_tracks_resampled_at_another_step_interpolate_within_each_track(
     like = batches.load_agent_windows(windows, "eth", "train")
     like = like.subset(np.flatnonzero(like.source == "biwi_hotel"))
     resampled = levers._resampled(windows, like, 1.5)
-    tracks = pq.read_table(built_store.lookup("tracks", windows.manifest.sources["tracks"]).file("tracks.parquet"))
+    tracks = pq.read_table(built_store.lookup("tracks", windows.manifest.sources["tracks"]).file(TRACKS_FILE))
     tracks = tracks.to_pandas()
     hotel = tracks[(tracks["source"] == "biwi_hotel") & tracks["split"].isin(["train", "val"])]
     # 20 steps of 1.5 recorded steps span 28.5 steps: of the synthetic walkers' train tracks (30, 29 and 28 steps)
