@@ -341,7 +341,7 @@ def draw_futures(
 ) -> Drawn:
     """The goals, K futures and most-likely future of the observed agent-windows `found`, whose agent ids are
     `labels` (M,): the one drawing path of `predict_tracks` and `OnlinePredictor`. most_likely: decode that one
-    future too (one more encoding and K = 1 decoding per batch; `predict` asks for it only with --most-likely)."""
+    future too (in the same rollout as the K: a few more tokens; `predict` asks for it only with --most-likely)."""
     check_k(k, len(found.xy), model.pred_len)
     check_seed(seed)
     crowd = int(np.bincount(found.window).max()) if len(found.window) else 0
@@ -387,10 +387,10 @@ def draw_futures(
             goals_of = predictor.goals
     plan = plan_batches(scenes, predictor.cfg)
     columns = collect(
-        sample_batches(predictor, scenes, plan, goals_of, model.device),
+        sample_batches(predictor, scenes, plan, goals_of, model.device, with_most_likely=most_likely),
         lambda batch, goals_k, futures: (
-            {"goal": goals_k.transpose(1, 2), "pred": futures.transpose(1, 2)}
-            | ({"likely": predictor.most_likely(batch, goals_k[:, 0])} if most_likely else {})
+            {"goal": goals_k.transpose(1, 2), "pred": futures[:, :k].transpose(1, 2)}
+            | ({"likely": futures[:, k]} if most_likely else {})
         ),
     )
     return Drawn(columns["goal"], columns["pred"], columns.get("likely", np.zeros(0)))

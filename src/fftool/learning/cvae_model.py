@@ -21,7 +21,7 @@ from fftool.learning.features import Prepared, decoder_features, prepare
 from fftool.learning.protocols import repeat_windows, with_forces
 from fftool.learning.training import epoch_batches, generator, model_file, validation_subset
 from fftool.models.dlow import QNet
-from fftool.models.forceformer import ForceFormer, LossParts, kl_divergence
+from fftool.models.forceformer import ForceFormer, Gaussian, LossParts, kl_divergence
 from fftool.science.metrics import ade_fde
 from fftool.variants import SPECS
 
@@ -60,25 +60,39 @@ def sample(
     generator_: torch.Generator | None = None,
     sampler: QNet | None = None,
     pick: torch.Tensor | None = None,
+    with_mean: bool = False,
 ) -> torch.Tensor:
     """K futures per agent, (B, K, A, Tf, 2) in the normalised frame: drawn from the prior, or, given a DLow
     `sampler`, decoded from its K codes z = b (AgentFormer's test-time codes). `pick` (B,): each window
-    decodes only that code (the fair protocol's windows, one per goal), so K is 1."""
+    decodes only one code (the fair protocol's windows, one per goal), so K is 1: the sampler's code `pick`
+    (a prior draw without a sampler), or the prior's mean where `pick` is -1. with_mean: the prior's mean code
+    decoded in the same rollout as one more sample, last (`most_likely`'s future at the cost of a few more
+    tokens instead of a second rollout); the draws are those without it."""
     with autocast(cfg, prepared.past.device):
         tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
-        steps = prepared.future_pos.shape[2]
-        where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
-        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
-        if sampler is None:
-            return model.sample(model.prior(agent_context), tokens, *where, features, k, generator_, goal=prepared.goal)
-        z = sampler(agent_context).b  # (B, A, K', Z)
-        if pick is not None:
-            z = z[torch.arange(len(z), device=z.device), :, pick][:, None]  # (B, 1, A, Z)
-        elif z.shape[2] != k:
-            raise ValueError(f"the DLow sampler draws {z.shape[2]} futures per agent, {k} were asked for")
+        prior = model.prior(agent_context)
+        B, A, Z = prior.mu.shape
+        if pick is not None:  # one code per window
+            mean_rows = pick < 0
+            if sampler is None:
+                z = prior.mu.clone()
+                z[~mean_rows] = Gaussian(prior.mu[~mean_rows], prior.logvar[~mean_rows]).sample(generator_)
+            else:
+                codes = sampler(agent_context).b  # (B, A, K', Z)
+                picked = codes[torch.arange(B, device=codes.device), :, pick.clamp_min(0)]
+                z = torch.where(mean_rows[:, None, None], prior.mu.to(picked.dtype), picked)
+            z = z[:, None]  # (B, 1, A, Z)
+        elif sampler is None:
+            rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
+            z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_).view(B, k, A, Z)
         else:
-            z = z.transpose(1, 2)  # (B, K, A, Z)
-        return model.decode_k(z.reshape(-1, *z.shape[2:]), tokens, *where, features, k, goal=prepared.goal)
+            codes = sampler(agent_context).b  # (B, A, K', Z)
+            if codes.shape[2] != k:
+                raise ValueError(f"the DLow sampler draws {codes.shape[2]} futures per agent, {k} were asked for")
+            z = codes.transpose(1, 2)  # (B, K, A, Z)
+        if with_mean:
+            z = torch.cat([z, prior.mu[:, None].to(z.dtype)], 1)
+        return _decode_codes(model, prepared, cfg, forces_cfg, dt_s, tokens, z)
 
 
 def most_likely(
@@ -88,10 +102,24 @@ def most_likely(
     (z = μ of p(z | past)), the centre of the distribution the K samples are drawn from. Deterministic."""
     with autocast(cfg, prepared.past.device):
         tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
-        steps = prepared.future_pos.shape[2]
-        where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
-        features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=1)
-        return model.decode_k(model.prior(agent_context).mu, tokens, *where, features, 1, goal=prepared.goal)
+        return _decode_codes(model, prepared, cfg, forces_cfg, dt_s, tokens, model.prior(agent_context).mu[:, None])
+
+
+def _decode_codes(
+    model: ForceFormer,
+    prepared: Prepared,
+    cfg: CVAEConfig,
+    forces_cfg: ForcesConfig | None,
+    dt_s: float | None,
+    tokens: torch.Tensor,
+    z: torch.Tensor,
+) -> torch.Tensor:
+    """The futures (B, K, A, Tf, 2) of codes z (B, K, A, Z), all K from each window's encoded past `tokens`."""
+    B, k, A, Z = z.shape
+    steps = prepared.future_pos.shape[2]
+    where = (prepared.agent_mask, prepared.past_pos[:, :, -1], prepared.last_step, steps)
+    features = decoder_features(cfg.variant, prepared, forces_cfg, dt_s, repeat=k)
+    return model.decode_k(z.reshape(B * k, A, Z), tokens, *where, features, k, goal=prepared.goal)
 
 
 def epoch_plan(

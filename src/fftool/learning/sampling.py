@@ -71,29 +71,53 @@ class Predictor:
         return protocol_goals(self.protocol, sampled, batch.xy[:, :, -1], k)
 
     def __call__(self, batch: SceneBatch, goals: torch.Tensor) -> torch.Tensor:
+        return self.draw(batch, goals)[0]
+
+    def draw(
+        self, batch: SceneBatch, goals: torch.Tensor, with_most_likely: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The K futures (B, K, A, T, 2) toward goals (B, K, A, 2) and, with_most_likely, the most-likely future
+        (B, A, T, 2) toward goal 1 (`most_likely`) from the same rollout: one more code per window, or under the
+        fair protocol one more window (goal 1, the prior's mean code), instead of a second rollout. The K
+        futures are those drawn without it."""
         k, obs_len = self.cfg.k, self.obs_len
         if self.model is None:
+            if with_most_likely:
+                raise ValueError("constant velocity has no prior: its sample 0 is its exact extrapolation")
             cfg = self.cfg
             past = batch.xy[:, :, :obs_len]
-            return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen)
+            return constant_velocity(past, self.pred_len, k, cfg.cv_angle_std_deg, cfg.cv_speed_std, self.gen), None
         B, _, A, _ = goals.shape
+        mean_codes = self.cfg.mean_codes(self.variant)  # sample 1 is then the most-likely future itself
+        extra = int(with_most_likely and not mean_codes)
         pick = None
         if self.protocol == "fair":  # a different goal per sample: every sample has its own past inputs
-            batch, goal, draws = repeat_windows(batch, k), goals.reshape(B * k, A, 2), 1
+            if extra:  # one more window: goal 1, decoded from the prior's mean code
+                goals = torch.cat([goals, goals[:, :1]], 1)
+            windows = k + extra
+            batch, goal, draws = repeat_windows(batch, windows), goals.reshape(B * windows, A, 2), 1
             if self.sampler is not None:  # sample j of a window decodes the sampler's code j
-                pick = torch.arange(k, device=self.device).repeat(B)
+                pick = torch.arange(windows, device=self.device).repeat(B)
+            elif extra:  # a prior draw per window
+                pick = torch.zeros(B * windows, dtype=torch.long, device=self.device)
+            if pick is not None and extra:
+                pick[k::windows] = -1  # the extra window decodes the prior's mean code
         else:
             goal, draws = goals[:, 0], k
         if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
             batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
         prepared = prepare(batch, self.variant, obs_len, goal=goal)
-        if self.cfg.mean_codes(self.variant):  # each goal decoded from the prior's mean code
+        if mean_codes:  # each goal decoded from the prior's mean code
             futures = most_likely(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s)
         else:
             futures = sample(
-                self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick
-            )
-        return prepared.to_world(futures).reshape(B, k, A, self.pred_len, 2)
+                self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick,
+                with_mean=bool(extra) and self.protocol != "fair",
+            )  # fmt: skip
+        futures = prepared.to_world(futures).reshape(B, k + extra, A, self.pred_len, 2)
+        if not with_most_likely:
+            return futures, None
+        return futures[:, :k], futures[:, k if extra else 0]
 
     @torch.inference_mode()
     def most_likely(self, batch: SceneBatch, goal: torch.Tensor) -> torch.Tensor:
@@ -134,9 +158,15 @@ def collect(batches: Iterable[tuple[SceneBatch, torch.Tensor, torch.Tensor]], fi
 
 @torch.inference_mode()
 def sample_batches(
-    predictor: Predictor, scenes: SceneSet, plan: list[np.ndarray], goals_of: GoalsOf, device: torch.device
+    predictor: Predictor,
+    scenes: SceneSet,
+    plan: list[np.ndarray],
+    goals_of: GoalsOf,
+    device: torch.device,
+    with_most_likely: bool = False,
 ) -> Iterator[tuple[SceneBatch, torch.Tensor, torch.Tensor]]:
-    """(batch, goals (B, K, A, 2), futures (B, K, A, T, 2)) for each planned batch, in plan order.
+    """(batch, goals (B, K, A, 2), futures (B, K, A, T, 2)) for each planned batch, in plan order;
+    with_most_likely, the futures hold the most-likely future (`Predictor.draw`) after the K, (B, K + 1, A, T, 2).
 
     The predictor's generator runs through the batches in this order, so the plan fixes every number.
     """
@@ -145,7 +175,8 @@ def sample_batches(
         rows = batch.row.cpu().numpy()
         positions = np.where(rows >= 0, np.searchsorted(scenes.data.row, rows), -1)
         goals = goals_of(batch, positions)
-        yield batch, goals, predictor(batch, goals)
+        futures, likely = predictor.draw(batch, goals, with_most_likely)
+        yield batch, goals, futures if likely is None else torch.cat([futures, likely[:, None]], 1)
 
 
 def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:

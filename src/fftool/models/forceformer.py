@@ -18,14 +18,17 @@ from torch import Tensor, nn
 
 
 class Keys(NamedTuple):
-    """Projected keys of an attention: k, k_self and v, each (B, H, Lk, d_head)."""
+    """Projected keys of an attention, laid out once for the products that read them (a decoding step reads a
+    memory's keys and the cached keys of earlier steps at every step, so no step copies them again):
+    k and v (B, H, Lk, d_head), contiguous; k_self by agent and transposed, (B, H, A, d_head, Tk)."""
 
     k: Tensor
     k_self: Tensor
     v: Tensor
 
     def extend(self, other: Keys) -> Keys:
-        return Keys(*(torch.cat([a, b], 2) for a, b in zip(self, other)))
+        return Keys(torch.cat([self.k, other.k], 2), torch.cat([self.k_self, other.k_self], 4),
+                    torch.cat([self.v, other.v], 2))  # fmt: skip
 
 
 class Queries(NamedTuple):
@@ -43,21 +46,27 @@ class KeyCache:
     the views that earlier steps saved for the backward pass.
     """
 
-    def __init__(self, capacity: int) -> None:
-        self.capacity, self.length = capacity, 0
+    def __init__(self, steps: int) -> None:
+        self.capacity, self.length = steps, 0  # in steps
         self.keys: Keys | None = None
 
     def append(self, new: Keys) -> Keys:
-        n = new.k.shape[2]
         if torch.is_grad_enabled():
             self.keys = new if self.keys is None else self.keys.extend(new)
-        else:
-            if self.keys is None:
-                self.keys = Keys(*(t.new_empty(*t.shape[:2], self.capacity, t.shape[3]) for t in new))
-            for buffer, part in zip(self.keys, new):
-                buffer[:, :, self.length : self.length + n] = part
-        self.length += n
-        return Keys(*(t[:, :, : self.length] for t in self.keys))
+            self.length += new.k_self.shape[4]
+            return self.keys
+        if self.keys is None:
+            (B, H, agents, dh, _), cap = new.k_self.shape, self.capacity
+            self.keys = Keys(new.k.new_empty(B, H, cap * agents, dh), new.k.new_empty(B, H, agents, dh, cap),
+                             new.k.new_empty(B, H, cap * agents, dh))  # fmt: skip
+        agents, steps = new.k_self.shape[2], new.k_self.shape[4]
+        tokens = slice(self.length * agents, (self.length + steps) * agents)
+        self.keys.k[:, :, tokens] = new.k
+        self.keys.k_self[..., self.length : self.length + steps] = new.k_self
+        self.keys.v[:, :, tokens] = new.v
+        self.length += steps
+        return Keys(self.keys.k[:, :, : self.length * agents], self.keys.k_self[..., : self.length],
+                    self.keys.v[:, :, : self.length * agents])  # fmt: skip
 
 
 class Dropout(nn.Dropout):
@@ -108,53 +117,65 @@ class AgentAwareAttention(nn.Module):
         return x.view(B, L, self.n_heads, self.d_head).transpose(1, 2)  # (B, H, L, dh)
 
     def _project(self, x: Tensor, layers: tuple[nn.Linear, ...]) -> list[Tensor]:
-        """Several projections of x as one matrix product (much faster than one small product each)."""
+        """Several projections of x as one matrix product (much faster than one small product each); the
+        query projections come out scaled by 1/sqrt(d_head) (`_fused`)."""
         weight, bias = self._fused(layers)
         return [self._heads(part) for part in F.linear(x, weight, bias).chunk(len(layers), -1)]
 
     def _fused(self, layers: tuple[nn.Linear, ...]) -> tuple[Tensor, Tensor]:
-        """The layers' weights and biases stacked; without autograd kept until a parameter changes (sampling
-        projects the same layers at every decoding step), with it stacked afresh so gradients flow."""
+        """The layers' weights and biases stacked, the query layers' scaled by 1/sqrt(d_head) (scaling the
+        weights instead of every query; exact for a power-of-two d_head); without autograd kept until a
+        parameter changes (sampling projects the same layers at every decoding step), with it stacked afresh
+        so gradients flow."""
         parameters = [p for layer in layers for p in (layer.weight, layer.bias)]
         if torch.is_grad_enabled() or torch.compiler.is_exporting():  # an exported graph holds the stacks itself
-            return torch.cat(parameters[::2]), torch.cat(parameters[1::2])
+            return self._stack(layers)
         which, versions = tuple(map(id, layers)), tuple((p.data_ptr(), p._version) for p in parameters)
         kept = self._stacked.get(which)
         if kept is None or kept[0] != versions:
-            kept = self._stacked[which] = (versions, torch.cat(parameters[::2]), torch.cat(parameters[1::2]))
+            kept = self._stacked[which] = (versions, *self._stack(layers))
         return kept[1], kept[2]
 
-    def keys(self, key: Tensor) -> Keys:
-        """Project key tokens (B, Lk, D) once; decoders cache these instead of re-projecting every step."""
-        return Keys(*self._project(key, (self.k, self.k_self, self.v)))
+    def _stack(self, layers: tuple[nn.Linear, ...]) -> tuple[Tensor, Tensor]:
+        scale = 1 / math.sqrt(self.d_head)
+        scales = [scale if layer is self.q or layer is self.q_self else 1.0 for layer in layers]
+        weight = torch.cat([layer.weight * s if s != 1 else layer.weight for layer, s in zip(layers, scales)])
+        bias = torch.cat([layer.bias * s if s != 1 else layer.bias for layer, s in zip(layers, scales)])
+        return weight, bias
+
+    @staticmethod
+    def _laid_out(k: Tensor, k_self: Tensor, v: Tensor, agents: int) -> Keys:
+        """Keys as `Keys` holds them: k and v contiguous, k_self by agent and transposed."""
+        B, H, Lk, dh = k_self.shape
+        by_agent = k_self.reshape(B, H, Lk // agents, agents, dh).permute(0, 1, 3, 4, 2).contiguous()
+        return Keys(k.contiguous(), by_agent, v.contiguous())
+
+    def keys(self, key: Tensor, agents: int) -> Keys:
+        """Project key tokens (B, Lk, D) of `agents` slots once; decoders keep these instead of re-projecting
+        (and re-laying out) a memory at every step."""
+        return self._laid_out(*self._project(key, (self.k, self.k_self, self.v)), agents)
 
     def queries(self, query: Tensor) -> Queries:
         """Project query tokens (B, Lq, D), pre-scaled by 1/sqrt(d_head) (cheaper than scaling scores)."""
-        q, q_self = self._project(query, (self.q, self.q_self))
-        scale = 1 / math.sqrt(self.d_head)
-        return Queries(q * scale, q_self * scale)
+        return Queries(*self._project(query, (self.q, self.q_self)))
 
-    def project(self, x: Tensor) -> tuple[Queries, Keys]:
+    def project(self, x: Tensor, agents: int) -> tuple[Queries, Keys]:
         """Queries and keys of the same tokens (self-attention) in one product."""
         q, q_self, k, k_self, v = self._project(x, (self.q, self.q_self, self.k, self.k_self, self.v))
-        scale = 1 / math.sqrt(self.d_head)
-        return Queries(q * scale, q_self * scale), Keys(k, k_self, v)
+        return Queries(q, q_self), self._laid_out(k, k_self, v, agents)
 
     def attend(self, queries: Queries, keys: Keys, agents: int, allowed: Tensor | None) -> Tensor:
         """Projected queries and keys in time-major layouts of `agents` slots; allowed (B, Lq, Lk) bool,
         None when every pair is allowed (no padding in the batch: masking would change nothing).
 
         Same-agent scores are needed only where query and key belong to the same agent (1/A of the
-        pairs), so they are computed on that diagonal alone and written over the shared scores.
+        pairs), so they are computed per agent alone and written over the shared scores.
         """
         B, H, Lq, dh = queries.q.shape
         Lk = keys.k.shape[2]
         scores = queries.q @ keys.k.transpose(-1, -2)  # (B, H, Lq, Lk)
-        own = torch.einsum(
-            "bhqad,bhkad->bhqka",
-            queries.q_self.reshape(B, H, Lq // agents, agents, dh),
-            keys.k_self.reshape(B, H, Lk // agents, agents, dh),
-        )  # (B, H, Tq, Tk, A)
+        by_agent = queries.q_self.reshape(B, H, Lq // agents, agents, dh).transpose(2, 3)  # (B, H, A, Tq, dh)
+        own = (by_agent @ keys.k_self).permute(0, 1, 3, 4, 2)  # (B, H, Tq, Tk, A)
         if torch.compiler.is_exporting():  # an exported graph is functional: the same scores without in-place writes
             same = torch.eye(agents, dtype=torch.bool, device=scores.device)[:, None, :]  # (A, 1, A)
             own_grid = own.permute(0, 1, 2, 4, 3)[..., None].expand(-1, -1, -1, -1, -1, agents)  # (B,H,Tq,A,Tk,A)
@@ -174,8 +195,8 @@ class AgentAwareAttention(nn.Module):
     def forward(self, query: Tensor, key: Tensor, agents: int, allowed: Tensor | None) -> Tensor:
         """query (B, Lq, D), key (B, Lk, D), both time-major over `agents` slots; allowed (B, Lq, Lk)."""
         if query is key:
-            return self.attend(*self.project(query), agents, allowed)
-        return self.attend(self.queries(query), self.keys(key), agents, allowed)
+            return self.attend(*self.project(query, agents), agents, allowed)
+        return self.attend(self.queries(query), self.keys(key, agents), agents, allowed)
 
 
 class _FeedForward(nn.Sequential):
@@ -226,8 +247,8 @@ class DecoderLayer(nn.Module):
         (allowed_cross is (B / fold, fold · Lq, Lk)).
         """
         allowed_self, allowed_cross = masks
-        queries, keys = self.self_attn.project(x) if self_keys is None else self_keys
-        memory_keys = memory if isinstance(memory, Keys) else self.cross_attn.keys(memory)
+        queries, keys = self.self_attn.project(x, agents) if self_keys is None else self_keys
+        memory_keys = memory if isinstance(memory, Keys) else self.cross_attn.keys(memory, agents)
         x = self.norms[0](x + self.drop(self.self_attn.attend(queries, keys, agents, allowed_self)))
         B, L, D = x.shape
         folded = self.cross_attn.queries(x.reshape(B // fold, fold * L, D))
@@ -503,8 +524,8 @@ class ForceFormer(nn.Module):
         B, A, _ = last_pos.shape
         Tp = context.shape[1] // A
         cross = _token_masks(agent_mask[::repeat], repeat, Tp, causal=False)  # (B / repeat, repeat · A, Tp · A)
-        memory = [layer.cross_attn.keys(context) for layer in self.decoder]  # once per rollout and window
-        caches = [KeyCache(steps * A) for _ in self.decoder]
+        memory = [layer.cross_attn.keys(context, A) for layer in self.decoder]  # once per rollout and window
+        caches = [KeyCache(steps) for _ in self.decoder]
         # Step s may read every real agent's tokens of steps <= s; a padded query also sees itself.
         padded = cross is not None  # without padding no pair is masked: skip the masks
         own_token = torch.eye(A, dtype=torch.bool, device=agent_mask.device)[None, :, None, :]  # (1, A, 1, A)
@@ -516,7 +537,7 @@ class ForceFormer(nn.Module):
             x = self.decoder_embed(tokens, first_step=step)  # (B, A, D)
             allowed = allowed_all[:, :, : (step + 1) * A] if padded else None
             for layer, cache, keys in zip(self.decoder, caches, memory):
-                queries, new_keys = layer.self_attn.project(x)
+                queries, new_keys = layer.self_attn.project(x, A)
                 self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
             delta = self.out(x).float()  # (B, A, 2)

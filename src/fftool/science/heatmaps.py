@@ -132,17 +132,31 @@ def refine_mode(logits: Tensor, radius: int, temperature: float = 1.0) -> Tensor
 
 
 def _kmeans(points: Tensor, k: int, iterations: int) -> Tensor:
-    """Batched Lloyd k-means: (B, n, 2) -> (B, k, 2) centres, initialised at evenly spaced draws."""
+    """Batched Lloyd k-means: (B, n, 2) -> (B, k, 2) centres, initialised at evenly spaced draws; stops early
+    at a fixed point (centres that no longer move would not move in later iterations either).
+
+    Written in float arithmetic over a (B, k, n) layout, which a CPU vectorises (argmin over the k centres
+    and boolean masks do not, and were most of a goal sampling's time): a point belongs to the centre that
+    minimises |c|² - 2 c·p (its squared distance less |p|², the same for every centre); exact ties, which
+    continuous draws do not produce, would count a point in each tied cluster. Coordinates are centred
+    first, so |c|² stays small.
+    """
     B, n, _ = points.shape
+    offset = points.mean(1, keepdim=True)
+    points = points - offset
     start = torch.linspace(0, n - 1, k, device=points.device).round().long()
     centres = points[:, start].clone()
+    along_n = points.transpose(1, 2).contiguous()  # (B, 2, n)
     for _ in range(iterations):
-        nearest = torch.cdist(points, centres).argmin(-1)  # (B, n)
-        one_hot = F.one_hot(nearest, k).to(points.dtype)  # (B, n, k)
-        counts = one_hot.sum(1)  # (B, k)
-        sums = torch.einsum("bnk,bnd->bkd", one_hot, points)
-        centres = torch.where(counts[..., None] > 0, sums / counts.clamp_min(1)[..., None], centres)
-    return centres
+        score = torch.baddbmm((centres * centres).sum(-1, keepdim=True), centres, along_n, alpha=-2)  # (B, k, n)
+        member = 1 - torch.sign(score - score.amin(1, keepdim=True))  # (B, k, n): 1 at each point's centre
+        counts = member.sum(-1)  # (B, k)
+        sums = torch.stack([(member * along_n[:, i, None]).sum(-1) for i in range(2)], -1)  # (B, k, 2)
+        moved = torch.where(counts[..., None] > 0, sums / counts.clamp_min(1)[..., None], centres)
+        if torch.equal(moved, centres):
+            break
+        centres = moved
+    return centres + offset
 
 
 def constant_velocity_cells(obs_cells: Tensor, pred_len: int) -> Tensor:
