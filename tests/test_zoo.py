@@ -326,7 +326,8 @@ def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_
 
 def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: dict[str, Path]) -> None:
     """The fair path users take: a shipped goal variant predicting at time t gives the same futures whether the
-    tracks after t are there, scrambled or gone; the online predictor, fed up to t, gives the same again."""
+    tracks after t are there, scrambled or gone; the online predictor, fed up to t, gives the same again (to
+    float rounding: it decodes the most-likely future in the same rollout, one more window per batch)."""
     zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
     rng = np.random.default_rng(0)
     times = np.arange(20) * 0.4
@@ -348,7 +349,7 @@ def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: 
     online = OnlinePredictor("tiny/zara1/dr", k=5, seed=2)
     for t, rows in tracks[~future].groupby("time_s"):
         result = online.update(float(t), dict(zip(rows["agent"], zip(rows["x"], rows["y"]))))
-    assert np.array_equal(result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy())
+    np.testing.assert_allclose(result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy(), rtol=0, atol=1e-5)
 
 
 def _dlow_folder(tiny: dict[str, Path]) -> Path:

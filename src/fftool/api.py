@@ -35,7 +35,7 @@ from fftool.learning.observed import padded_batch, scene_set
 from fftool.learning.sampling import Predictor, collect, plan_batches, sample_batches
 from fftool.learning.training import generator
 from fftool.models.dlow import QNet
-from fftool.variants import reads_goal
+from fftool.variants import SPECS, reads_goal
 
 
 def find_artifact(ref: str | Path, kind: str, root: Path | None = None) -> tuple[ArtifactStore, Artifact]:
@@ -365,9 +365,9 @@ def draw_futures(
             point = np.full(2, np.nan)
         if off_limits(point[None]).any():
             raise InputError(f"agent {label}: goal {goal!r} is not an (x, y) within ±{MAX_ABS_COORDINATE_M:g} m")
-    scenes = scene_set(
-        found.xy, found.window, found.agent, model.pred_len, model.trained.forces_config, model.trained.dt_s
-    )
+    trained = model.trained
+    groups = "group_id" in SPECS[model.variant].sampling_reads
+    scenes = scene_set(found.xy, found.window, found.agent, model.pred_len, trained.forces_config, trained.dt_s, groups)
     predictor = model.predictor(k, seed)
     goals_of = predictor.goals
     if reads_goal(model.variant):

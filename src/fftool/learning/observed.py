@@ -19,12 +19,12 @@ from fftool.science.social_forces import group_ids, window_forces
 
 
 def desired_speed_and_groups(
-    past: np.ndarray, mask: np.ndarray, cfg: ForcesConfig | None, dt_s: float | None
+    past: np.ndarray, mask: np.ndarray, cfg: ForcesConfig | None, dt_s: float | None, groups: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """(B, A) desired speed v0 and (B, A) window-local group ids (-1 alone) from past (B, A, T, 2) metres.
 
     mask (B, A): real agents. Without force constants (a variant that reads no force) both are unused:
-    zeros and -1.
+    zeros and -1. groups: False for a variant that reads no group (every id -1, without the DBSCAN runs).
     """
     B, A, T, _ = past.shape
     if cfg is None or dt_s is None or B == 0:
@@ -32,15 +32,16 @@ def desired_speed_and_groups(
     present = np.repeat(mask[:, :, None], T, axis=2)
     frame_key = np.broadcast_to(np.arange(B)[:, None, None] * T + np.arange(T), (B, A, T))
     labels = np.full((B, A, T), -1, dtype=np.int64)
-    labels[present] = cluster_frames(frame_key[present], past[present], cfg.dbscan_eps_m, cfg.dbscan_min_samples)
+    if groups:
+        labels[present] = cluster_frames(frame_key[present], past[present], cfg.dbscan_eps_m, cfg.dbscan_min_samples)
     origin = past[:, :1, T - 1 : T]  # as the forces stage: float32 stays precise near the window
     position = torch.as_tensor(past - origin, dtype=torch.float32)
     valid = torch.as_tensor(mask)
     result = window_forces(
         position, torch.as_tensor(present), position[:, :, -1], torch.as_tensor(labels), cfg, dt_s=dt_s, obs_len=T
     )
-    groups = result.groups & valid[:, :, None] & valid[:, None, :]
-    return result.speed0[..., 0].numpy(), group_ids(groups).numpy()
+    together = result.groups & valid[:, :, None] & valid[:, None, :]
+    return result.speed0[..., 0].numpy(), group_ids(together).numpy()
 
 
 def padded_batch(
@@ -64,9 +65,16 @@ def padded_batch(
 
 
 def scene_set(
-    xy: np.ndarray, window: np.ndarray, agent: np.ndarray, pred_len: int, cfg: ForcesConfig | None, dt_s: float | None
+    xy: np.ndarray,
+    window: np.ndarray,
+    agent: np.ndarray,
+    pred_len: int,
+    cfg: ForcesConfig | None,
+    dt_s: float | None,
+    groups: bool = True,
 ) -> SceneSet:
-    """Agent-windows (M, T, 2) of windows 0..W-1 (sorted) as a SceneSet the planner cuts into batches."""
+    """Agent-windows (M, T, 2) of windows 0..W-1 (sorted) as a SceneSet the planner cuts into batches; groups:
+    whether the variant reads them (`desired_speed_and_groups`)."""
     M, T, _ = xy.shape
     window_start = np.r_[0, np.flatnonzero(np.diff(window)) + 1, M]
     counts = np.diff(window_start)
@@ -75,7 +83,7 @@ def scene_set(
     mask[window, slot] = True
     past = np.zeros((*mask.shape, T, 2))
     past[window, slot] = xy
-    speed0, group = desired_speed_and_groups(past, mask, cfg, dt_s)
+    speed0, group = desired_speed_and_groups(past, mask, cfg, dt_s, groups)
     L = T + pred_len
     data = AgentWindows(
         xy=np.concatenate([xy, np.zeros((M, pred_len, 2))], 1),
