@@ -134,6 +134,7 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=300, help="predicting updates per stream (quick size)")
     parser.add_argument("--paper-updates", type=int, default=60, help="predicting updates per stream (paper size)")
     parser.add_argument("--memory", type=int, default=0, help="instead: RSS over this many updates")
+    parser.add_argument("--out", type=Path, help="also write the latency table here (markdown)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), K = {args.k}")
@@ -146,11 +147,11 @@ def main() -> None:
         for profile in args.profiles.split(",")
     }
     print("one thread's matrix-product rate:", ", ".join(f"{p} {r:.1f} GFLOP/s" for p, r in rates.items()))
-    print(
-        "| model | agents | median (ms) | 99th percentile (ms) | min (ms) | GFLOP per update | floor at that rate (ms) "
-        "|"
-    )
-    print("|---|---:|---:|---:|---:|---:|---:|")
+    lines = [
+        "| model | agents | median (ms) | 99th percentile (ms) | min (ms) | GFLOP per update | floor at that rate (ms) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    print("\n".join(lines))
     for profile in args.profiles.split(","):
         model = model_of(profile, args.variant)
         for agents in (int(a) for a in args.agents.split(",")):
@@ -160,7 +161,10 @@ def main() -> None:
             cfg = model.trained.config
             label = f"{profile} (d_model {cfg.d_model}, {cfg.n_layers} layers)"
             row = f"| {label} | {agents} | {np.median(ms):.1f} | {np.percentile(ms, 99):.1f} | {ms.min():.1f} |"
-            print(f"{row} {work:.2f} | {work / rates[profile] * 1e3:.1f} |", flush=True)
+            lines.append(f"{row} {work:.2f} | {work / rates[profile] * 1e3:.1f} |")
+            print(lines[-1], flush=True)
+    if args.out:
+        args.out.write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ def main() -> None:
     parser.add_argument("--agents", default="1,10,50")
     parser.add_argument("--k", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--out", type=Path, help="also write the table here (markdown)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -46,8 +47,8 @@ def main() -> None:
     from fftool.learning.cvae_model import Trained, build_model
 
     print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), variant {args.variant}, K = {args.k}")
-    print("| model | parameters | agents | median latency (ms) | min (ms) |")
-    print("|---|---:|---:|---:|---:|")
+    lines = ["| model | parameters | agents | median latency (ms) | min (ms) |", "|---|---:|---:|---:|---:|"]
+    print("\n".join(lines))
     for profile in ("quick", "paper"):
         cfg = load_config(PIPELINES / f"{profile}.toml").cvae.model_copy(update={"variant": args.variant})
         torch.manual_seed(0)
@@ -64,7 +65,10 @@ def main() -> None:
                 times.append(time.perf_counter() - started)
             median, best = statistics.median(times) * 1e3, min(times) * 1e3
             label = f"{profile} (d_model {cfg.d_model}, {cfg.n_layers} layers)"
-            print(f"| {label} | {size:,} | {agents} | {median:.1f} | {best:.1f} |", flush=True)
+            lines.append(f"| {label} | {size:,} | {agents} | {median:.1f} | {best:.1f} |")
+            print(lines[-1], flush=True)
+    if args.out:
+        args.out.write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
