@@ -148,7 +148,7 @@ def main() -> None:
     }
     print("one thread's matrix-product rate:", ", ".join(f"{p} {r:.1f} GFLOP/s" for p, r in rates.items()))
     lines = [
-        "| model | agents | median (ms) | 99th percentile (ms) | min (ms) | GFLOP per update | floor at that rate (ms) |",
+        "| model | agents | median (ms) | 99th percentile (ms) | min (ms) | GFLOP per update | floor (ms) |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
     print("\n".join(lines))

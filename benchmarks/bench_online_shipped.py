@@ -110,7 +110,9 @@ def main() -> None:
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     with tempfile.TemporaryDirectory() as folder:
         reference = Path(folder) / "reference"
-        subprocess.run(["git", "worktree", "add", "--detach", "-q", str(reference), args.reference], cwd=ROOT, check=True)
+        subprocess.run(
+            ["git", "worktree", "add", "--detach", "-q", str(reference), args.reference], cwd=ROOT, check=True
+        )
         try:
             new: list[list[float]] = [[] for _ in cells]
             old: list[list[float]] = [[] for _ in cells]
@@ -122,8 +124,8 @@ def main() -> None:
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(reference)], cwd=ROOT, check=True)
     lines = [
-        f"`OnlinePredictor(model).update`, K = 20, one thread; {args.reference} (before) against {head.strip()} (after), "
-        f"{args.rounds} alternating rounds; milliseconds per update.",
+        f"`OnlinePredictor(model).update`, K = 20, one thread; {args.reference} (before) against {head.strip()} "
+        f"(after), {args.rounds} alternating rounds; milliseconds per update.",
         "",
         "| model | agents | goals | before: median / p99 | after: median / p99 | speed-up (medians) |",
         "|---|---:|---|---:|---:|---:|",

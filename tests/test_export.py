@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import onnxruntime
 import pytest
+import torch
 from typer.testing import CliRunner
 
 from fftool import pipeline
-from fftool.api import load
+from fftool.api import load, load_goal_sampler
 from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import predictor_config
@@ -69,6 +70,44 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(raw_tre
         assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
 
 
+@pytest.mark.slow
+def test_an_exported_goal_unet_draws_the_torch_goals(raw_tree: Path, tmp_path: Path) -> None:
+    """A goal variant exported with its goal U-Net: goal_unet.onnx gives the torch goal maps (within 1e-4 of a
+    logit), and the online predictor on the export draws its own goals and gives the torch path's futures."""
+    store = ArtifactStore(tmp_path / "artifacts")
+    cfg = predictor_config(_cfg(raw_tree), "dr")
+    built = pipeline.run(cfg, store, ["dlow", "goal"], benchmark="zara1")
+    cvae, dlow, goal = built["cvae"], built["dlow"], built["goal"]
+    out = tmp_path / "exported"
+    args = ["export", cvae.id, "--dlow", dlow.id, "--goal-model", goal.id, "--root", str(store.root), "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.iterdir()) == ["goal_unet.onnx", "manifest.json", "model.onnx"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["goal_unet"]["crop_cells"] == goal.manifest.params["crop_cells"]
+    sampler = load_goal_sampler(goal.id, root=store.root)
+    session = onnxruntime.InferenceSession(str(out / "goal_unet.onnx"), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(2)
+    for agents in (1, 2, 7):
+        past = (np.cumsum(rng.normal(0.3, 0.1, (agents, 8, 2)), 1) + rng.normal(0, 3, (agents, 1, 2))).astype(
+            np.float32
+        )
+        got = session.run(None, {"past": past})
+        expected = sampler.maps(torch.as_tensor(past), 12)
+        for graph_part, torch_part in zip(got, expected):
+            assert graph_part.shape == tuple(torch_part.shape)
+            assert np.abs(graph_part - torch_part.detach().numpy()).max() < 1e-4
+
+    model = load(cvae.id, root=store.root, dlow=dlow.id)
+    by_graph, by_torch = OnlinePredictor(out, k=3), OnlinePredictor(model, k=3, goal_sampler=sampler)
+    for step in range(9):
+        detections = {agent: (0.5 * step * (agent - 6), 0.3 * agent - 0.1 * step) for agent in (7, 8, 9)}
+        graph, torch_path = by_graph.update(0.4 * step, detections), by_torch.update(0.4 * step, detections)
+        assert list(graph.agents) == list(torch_path.agents) == ([7, 8, 9] if step >= 7 else [])
+        assert np.abs(graph.goals - torch_path.goals).max(initial=0.0) < 1e-4  # drawn, not passed
+        assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
+
+
 def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
     earlier = tmp_path / "earlier"  # an export fftool wrote may be replaced
     earlier.mkdir()
@@ -93,6 +132,7 @@ def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
         ({"inputs": {"past": {}, "agent_mask": {}}}, r"inputs \['past', 'agent_mask'\], expected .*'speed0'"),
         ({"forces": {"fov_deg": "wide"}}, "forces.fov_deg: "),
         ({"k": None} | {"drop": "k"}, r"missing \['k'\]"),
+        ({"goal_unet": {"config": {"crop_cells": "wide"}}}, "goal_unet: expected its config and sampling"),
     ],
 )
 def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict, message: str) -> None:

@@ -349,7 +349,9 @@ def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: 
     online = OnlinePredictor("tiny/zara1/dr", k=5, seed=2)
     for t, rows in tracks[~future].groupby("time_s"):
         result = online.update(float(t), dict(zip(rows["agent"], zip(rows["x"], rows["y"]))))
-    np.testing.assert_allclose(result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy(), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(
+        result.table()[["x", "y"]].to_numpy(), tables[0][["x", "y"]].to_numpy(), rtol=0, atol=1e-5
+    )
 
 
 def _dlow_folder(tiny: dict[str, Path]) -> Path:

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import pandas as pd
@@ -243,6 +243,12 @@ def load(
     return Model(trained, int(stats["obs_len"]), int(stats["pred_len"]), chosen, sampler, loaded, fair_code)
 
 
+class DrawsGoals(Protocol):
+    """What draws K goals per observed path: a `GoalSampler`, or an export's goal U-Net (fftool.exported)."""
+
+    def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class GoalSampler:
     """A trained goal U-Net that draws K goals per observed path, without a scene map (its map channels are 0),
@@ -253,24 +259,27 @@ class GoalSampler:
     sampling: GoalsConfig
     in_channels: int
 
+    def maps(self, obs: torch.Tensor, pred_len: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The goal maps' logits (M, S, S), crop centres (M, 2) and rotations (M, 2, 2) of observed paths obs
+        (M, T, 2) metres: the network's part, which `fftool export` writes as a graph."""
+        channels = self.in_channels - obs.shape[1] - int(self.config.cv_channel)
+        blank = SceneMaps(torch.zeros(1, channels, 1, 1), torch.zeros(1, 2), 1.0, ()).to(obs.device)
+        scene = torch.zeros(obs.shape[0], dtype=torch.long, device=obs.device)
+        return goal_model.goal_map(self.net, obs, scene, blank, self.config, pred_len)
+
     def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
         """(M, K, 2) goals for observed paths past (M, T, 2)."""
-        cfg = self.config
-        channels = self.in_channels - past.shape[1] - int(cfg.cv_channel)
-        blank = SceneMaps(torch.zeros(1, channels, 1, 1), torch.zeros(1, 2), 1.0, ()).to(device)
-        obs = torch.as_tensor(past, dtype=torch.float32, device=device)
-        scene = torch.zeros(len(past), dtype=torch.long, device=device)
-        goals = goal_model.predict_goals(
-            self.net,
-            obs,
-            scene,
-            blank,
-            cfg,
-            self.sampling.model_copy(update={"k": k}),
-            generator(seed, device),
-            pred_len,
-        )
-        return goals.cpu().numpy()
+        with torch.no_grad():
+            maps = self.maps(torch.as_tensor(past, dtype=torch.float32, device=device), pred_len)
+            return draw_goals(maps, self.config, self.sampling, k, seed).cpu().numpy()
+
+
+def draw_goals(
+    maps: tuple[torch.Tensor, torch.Tensor, torch.Tensor], cfg: GoalConfig, sampling: GoalsConfig, k: int, seed: int
+) -> torch.Tensor:
+    """(M, K, 2) world goals drawn from goal maps (`GoalSampler.maps`) with `sampling` and K = k, seeded."""
+    logits = maps[0]
+    return goal_model.goals_from_map(*maps, cfg, sampling.model_copy(update={"k": k}), generator(seed, logits.device))
 
 
 def load_goal_sampler(ref: str | Path, *, root: Path | None = None, device: str | torch.device = "cpu") -> GoalSampler:
@@ -296,7 +305,7 @@ def predict_tracks(
     k: int = 20,
     seed: int = 0,
     goals: Mapping[object, tuple[float, float]] | None = None,
-    goal_sampler: GoalSampler | None = None,
+    goal_sampler: DrawsGoals | None = None,
     max_gap_s: float = 1.0,
     most_likely: bool = False,
 ) -> tuple[pd.DataFrame, list[str]]:
@@ -336,7 +345,7 @@ def draw_futures(
     k: int,
     seed: int,
     goals: Mapping[object, tuple[float, float]] | None,
-    goal_sampler: GoalSampler | None,
+    goal_sampler: DrawsGoals | None,
     most_likely: bool = True,
 ) -> Drawn:
     """The goals, K futures and most-likely future of the observed agent-windows `found`, whose agent ids are
@@ -401,7 +410,7 @@ def goals_per_sample(
     labels: np.ndarray,
     past: np.ndarray,
     goals: Mapping[object, tuple[float, float]] | None,
-    goal_sampler: GoalSampler | None,
+    goal_sampler: DrawsGoals | None,
     *,
     k: int,
     seed: int,

@@ -11,8 +11,11 @@ what the torch path computes before the network:
   group ids (-1 alone): `learning.observed.desired_speed_and_groups` computes both from `past` as the torch
   path does (the observed mean speed; DBSCAN groups).
 
-Output: `futures` (1, K, A, pred_len, 2) float32, world metres. The goal U-Net's sampling (TTST's k-means)
-stays on the host: a goal variant's graph takes goals (from `fftool.api.GoalSampler`, or a planner's own).
+Output: `futures` (1, K, A, pred_len, 2) float32, world metres. A goal variant exported with its goal U-Net
+also gets `goal_unet.onnx`: `past` (A, obs_len, 2) float32 metres in, each agent's goal map out (`logits`
+(A, S, S) over its crop, the crop's `centre` (A, 2) and `rotation` (A, 2, 2)); the sampling from those maps
+(TTST's draws and k-means, `fftool.science.heatmaps.sample_goals`) stays on the host, as random draws have
+no graph that equals them; the manifest's `goal_unet` block has its settings and the cell-to-world formula.
 A model drawn from its prior (no DLow sampler) is refused: its draws are random, so no graph could equal it;
 a goal variant whose profile decodes each goal from the prior's mean (`evaluate.fair_code`) needs no sampler.
 """
@@ -34,6 +37,7 @@ from fftool.outputs import replacing_folder
 from fftool.variants import SPECS, reads_goal
 
 ONNX_FILE = "model.onnx"
+GOAL_ONNX_FILE = "goal_unet.onnx"
 MANIFEST_FILE = "manifest.json"
 OPSET = 18
 MAX_AGENTS = 4096  # agents in one scene the graph takes
@@ -77,6 +81,17 @@ class _Graph(torch.nn.Module):
         return self.predictor(batch, goals)
 
 
+class _GoalGraph(torch.nn.Module):
+    """`GoalSampler.maps`, the goal U-Net's part of drawing goals, as one module of tensors in and out."""
+
+    def __init__(self, goal_sampler: Any, pred_len: int) -> None:  # an fftool.api.GoalSampler
+        super().__init__()
+        self.net, self.goal_sampler, self.pred_len = goal_sampler.net, goal_sampler, pred_len
+
+    def forward(self, past: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self.goal_sampler.maps(past, self.pred_len)
+
+
 def example_inputs(variant: str, k: int, obs_len: int, batch: int = 1, agents: int = 3) -> dict[str, np.ndarray]:
     """Inputs of the graph's layout: one window (a scene: the graph takes one at a time) of `agents` agents (more
     than one: torch.export fixes a dimension of size 1)."""
@@ -106,7 +121,9 @@ def check_out(out: Path) -> None:
     blocked = next((parent for parent in out.parents if parent.exists() and not parent.is_dir()), None)
     if blocked is not None:
         raise UsageError(f"--out {out}: {blocked} is a file, not a folder")
-    if out.is_file() or (out.is_dir() and not set(p.name for p in out.iterdir()) <= {ONNX_FILE, MANIFEST_FILE}):
+    if out.is_file() or (
+        out.is_dir() and not {p.name for p in out.iterdir()} <= {ONNX_FILE, GOAL_ONNX_FILE, MANIFEST_FILE}
+    ):
         raise UsageError(f"--out {out}: exists and is not a model fftool exported; refusing to replace it")
     if (out / MANIFEST_FILE).is_file() and not is_export(out):
         raise UsageError(f"--out {out}: its manifest.json is not an export's; refusing to replace it")
@@ -118,11 +135,14 @@ class Exported:
     manifest: dict[str, Any]
 
 
-def export(model: Any, out: Path, source: dict[str, str]) -> Exported:
+def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = None) -> Exported:
     """Write `model` (an fftool.api.Model with a DLow sampler, or a goal variant that decodes each goal from
-    its prior's mean) to `out` as model.onnx + manifest.json, built in a temporary folder beside it and moved
-    into place whole. source: where it came from (name, ids)."""
+    its prior's mean) to `out` as model.onnx + manifest.json, and a goal variant's `goal_sampler` (an
+    fftool.api.GoalSampler) as goal_unet.onnx, built in a temporary folder beside it and moved into place
+    whole. source: where it came from (name, ids)."""
     check_out(out)
+    if goal_sampler is not None and not reads_goal(model.variant):
+        raise UsageError(f"the {model.variant} variant reads no goal: it is exported without a goal U-Net")
     if model.sampler is None and not model.mean_codes("fair"):
         raise UsageError(
             f"this {model.variant} model draws from its prior (no DLow sampler): random draws have no ONNX "
@@ -149,6 +169,8 @@ def export(model: Any, out: Path, source: dict[str, str]) -> Exported:
         "outputs": {"futures": f"(1, {graph.k}, A, {model.pred_len}, 2) float32, world metres"},
         "source": source,
     }
+    if goal_sampler is not None:
+        manifest["goal_unet"] = _goal_manifest(goal_sampler, model.obs_len)
     with replacing_folder(out) as partial, torch.no_grad():
         torch.onnx.export(
             graph,
@@ -164,23 +186,68 @@ def export(model: Any, out: Path, source: dict[str, str]) -> Exported:
             verbose=False,
             optimize=False,
         )
-        _name_output_dims(partial / ONNX_FILE, [1, graph.k, "A", model.pred_len, 2])
+        _name_output_dims(partial / ONNX_FILE, [[1, graph.k, "A", model.pred_len, 2]])
+        if goal_sampler is not None:
+            _export_goal_unet(goal_sampler, model.obs_len, model.pred_len, partial / GOAL_ONNX_FILE)
         (partial / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")
     return Exported(out, manifest)
 
 
-def _name_output_dims(path: Path, dims: list[str | int]) -> None:
-    """Write the output's shape into the graph (the exporter's shape inference fixes the agents' dimension at
+def _export_goal_unet(goal_sampler: Any, obs_len: int, pred_len: int, path: Path) -> None:
+    """goal_unet.onnx: observed paths (A, obs_len, 2) in, goal maps, crop centres and rotations out."""
+    past = torch.as_tensor(example_inputs("goal", 1, obs_len)["past"][0])  # (3, obs_len, 2)
+    torch.onnx.export(
+        _GoalGraph(goal_sampler, pred_len).eval(),
+        (past,),
+        str(path),
+        input_names=["past"],
+        output_names=["logits", "centre", "rotation"],
+        dynamic_shapes={"past": {0: torch.export.Dim("A", max=MAX_AGENTS)}},
+        opset_version=OPSET,
+        dynamo=True,
+        external_data=False,
+        verbose=False,
+        optimize=False,
+    )
+    S = goal_sampler.config.crop_cells
+    _name_output_dims(path, [["A", S, S], ["A", 2], ["A", 2, 2]])
+
+
+def _goal_manifest(goal_sampler: Any, obs_len: int) -> dict[str, Any]:
+    """What a host needs to draw goals from goal_unet.onnx's maps."""
+    cfg, S = goal_sampler.config, goal_sampler.config.crop_cells
+    return {
+        "file": GOAL_ONNX_FILE,
+        "inputs": {"past": f"(A, {obs_len}, 2) float32, world metres, the observed positions (oldest first)"},
+        "outputs": {
+            "logits": f"(A, {S}, {S}) float32, each agent's goal map: logit of the goal's cell (row, col)",
+            "centre": "(A, 2) float32, world metres, the crop's centre (the last observed position)",
+            "rotation": "(A, 2, 2) float32, the crop's orientation R",
+        },
+        "cells_to_world": f"world = centre + R @ (cell - {S // 2}) * {cfg.resolution_m} for cell = (col, row)",
+        "crop_cells": S,
+        "resolution_m": cfg.resolution_m,
+        "config": cfg.model_dump(mode="json"),
+        "sampling": goal_sampler.sampling.model_dump(mode="json"),
+        "sampling_method": "goal 1: the mode (argmax refined over (2r+1)² cells, r = mode_radius_cells); the other "
+        "K - 1: TTST, k-means centres of `samples` draws from P = sigmoid(logits / temperature) with cells below "
+        "threshold · max P dropped (fftool.science.heatmaps.sample_goals)",
+    }
+
+
+def _name_output_dims(path: Path, shapes: list[list[str | int]]) -> None:
+    """Write the outputs' shapes into the graph (the exporter's shape inference fixes the agents' dimension at
     the example's, which onnxruntime then warns about on every call)."""
     import onnx
 
     graph = onnx.load(str(path))
-    for dim, value in zip(graph.graph.output[0].type.tensor_type.shape.dim, dims):
-        dim.Clear()
-        if isinstance(value, str):
-            dim.dim_param = value
-        else:
-            dim.dim_value = value
+    for output, dims in zip(graph.graph.output, shapes):
+        for dim, value in zip(output.type.tensor_type.shape.dim, dims):
+            dim.Clear()
+            if isinstance(value, str):
+                dim.dim_param = value
+            else:
+                dim.dim_value = value
     onnx.save(graph, str(path))
 
 

@@ -1,9 +1,10 @@
 """An `fftool export` folder run by onnxruntime: the K futures of one scene per call, as the torch path gives
-them within 1e-4 m. `fftool.online.OnlinePredictor` runs on one when given its folder; a planner's own code
-needs only onnxruntime and the manifest (docs/api.md)."""
+them within 1e-4 m, and a goal variant's goals from its exported goal U-Net. `fftool.online.OnlinePredictor`
+runs on one when given its folder; a planner's own code needs only onnxruntime and the manifest (docs/api.md)."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,21 +14,38 @@ import numpy as np
 import torch
 from pydantic import ValidationError
 
-from fftool.config import ForcesConfig
+from fftool.api import draw_goals
+from fftool.config import ForcesConfig, GoalConfig, GoalsConfig
 from fftool.errors import InputError, UsageError
-from fftool.export import MANIFEST_FILE, ONNX_FILE, input_names, is_export
+from fftool.export import GOAL_ONNX_FILE, MANIFEST_FILE, ONNX_FILE, input_names, is_export
 from fftool.learning.observed import desired_speed_and_groups
 from fftool.variants import SPECS
 
 
 @dataclass(frozen=True)
+class ExportedGoalSampler:
+    """An exported goal U-Net: its graph draws the goal maps (onnxruntime), the host samples goals from them as
+    `fftool.api.GoalSampler` does (the same seeded draws)."""
+
+    session: Any  # onnxruntime.InferenceSession of goal_unet.onnx
+    config: GoalConfig
+    sampling: GoalsConfig
+
+    def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
+        """(M, K, 2) goals for observed paths past (M, T, 2) (pred_len is the graph's own)."""
+        maps = self.session.run(None, {"past": np.asarray(past, np.float32)})
+        return draw_goals(tuple(map(torch.as_tensor, maps)), self.config, self.sampling, k, seed).numpy()
+
+
+@dataclass(frozen=True)
 class ExportedModel:
-    """An exported predictor: its manifest's facts and an onnxruntime session of its graph (CPU)."""
+    """An exported predictor: its manifest's facts and onnxruntime sessions of its graphs (CPU)."""
 
     folder: Path
     manifest: dict[str, Any]
     session: Any  # onnxruntime.InferenceSession
     forces_config: ForcesConfig | None
+    goal_sampler: ExportedGoalSampler | None  # a goal variant exported with its goal U-Net
     device = torch.device("cpu")  # where a goal sampler beside it runs
 
     @classmethod
@@ -36,10 +54,8 @@ class ExportedModel:
         folder = Path(folder)
         if not is_export(folder):
             raise UsageError(f"{folder}: not a folder `fftool export` wrote ({MANIFEST_FILE} of an ONNX export)")
-        try:
-            import onnxruntime
-        except ImportError:
-            raise UsageError('running an exported model needs onnxruntime: pip install "fftool[onnx]"') from None
+        if importlib.util.find_spec("onnxruntime") is None:
+            raise UsageError('running an exported model needs onnxruntime: pip install "fftool[onnx]"')
         where = folder / MANIFEST_FILE
         manifest = json.loads(where.read_text())
         missing = [key for key in ("variant", "k", "obs_len", "pred_len", "step_s", "inputs") if key not in manifest]
@@ -55,11 +71,15 @@ class ExportedModel:
         except ValidationError as exc:
             first = exc.errors()[0]
             raise InputError(f"{where}: forces.{'.'.join(map(str, first['loc']))}: {first['msg']}") from None
-        try:
-            session = onnxruntime.InferenceSession(str(folder / ONNX_FILE), providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime's own errors: a missing or damaged graph
-            raise InputError(f"{folder / ONNX_FILE}: not a graph onnxruntime can load ({exc})") from None
-        return cls(folder, manifest, session, forces)
+        goal_sampler = None
+        if manifest.get("goal_unet"):
+            try:
+                goal_cfg = GoalConfig.model_validate(manifest["goal_unet"]["config"])
+                sampling = GoalsConfig.model_validate(manifest["goal_unet"]["sampling"])
+            except (ValidationError, KeyError, TypeError) as exc:
+                raise InputError(f"{where}: goal_unet: expected its config and sampling ({exc})") from None
+            goal_sampler = ExportedGoalSampler(_session(folder / GOAL_ONNX_FILE), goal_cfg, sampling)
+        return cls(folder, manifest, _session(folder / ONNX_FILE), forces, goal_sampler)
 
     @property
     def variant(self) -> str:
@@ -97,3 +117,13 @@ class ExportedModel:
             values["goals"] = np.asarray(goals, np.float32).transpose(1, 0, 2)[None]
         (futures,) = self.session.run(None, {name: values[name] for name in self.manifest["inputs"]})
         return futures[0].transpose(1, 0, 2, 3)
+
+
+def _session(path: Path) -> Any:
+    """An onnxruntime session of the graph at `path` (CPU), or an InputError naming it."""
+    import onnxruntime
+
+    try:
+        return onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's own errors: a missing or damaged graph
+        raise InputError(f"{path}: not a graph onnxruntime can load ({exc})") from None

@@ -25,7 +25,7 @@ from fftool import zoo
 from fftool.api import (
     MAX_ABS_COORDINATE_M,
     Drawn,
-    GoalSampler,
+    DrawsGoals,
     Model,
     check_k,
     check_seed,
@@ -87,20 +87,20 @@ class OnlinePredictor:
         *,
         k: int = 20,
         seed: int = 0,
-        goal_sampler: GoalSampler | str | Path | None = None,
+        goal_sampler: DrawsGoals | str | Path | None = None,
         max_gap_s: float = 1.0,
         root: Path | None = None,
         device: str | torch.device = "cpu",
     ) -> None:
         """goal_sampler: a goal U-Net (or its reference) drawing K goals per agent for goal variants; a shipped
-        goal variant brings its own. Without one, goal variants take `goals` in each update."""
+        goal variant brings its own, and so does an export of one made with its goal U-Net. Without one, goal
+        variants take `goals` in each update."""
         if isinstance(model, (str, Path)) and is_export(Path(model)):
             model = ExportedModel.load(model)
         if isinstance(model, ExportedModel):
             if k != model.k:
                 raise UsageError(f"k = {k}: {model.folder} was exported with K = {model.k} (its graph's codes)")
-            if goal_sampler is None and model.source and zoo.is_name(model.source) and reads_goal(model.variant):
-                goal_sampler = model.source  # exported from a shipped goal variant: its goal U-Net
+            goal_sampler = goal_sampler or model.goal_sampler  # exported with its goal U-Net: that graph
         elif not isinstance(model, Model):
             shipped = zoo.is_name(model)
             name, model = model, load(model, root=root, device=device)

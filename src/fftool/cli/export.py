@@ -12,7 +12,7 @@ from fftool.cli.app import RootOption, app, boundary
 
 @app.command(
     epilog="Examples:\n\n"
-    "  fftool export cpu/zara1/dr --out zara1_dr/        # a shipped model: its CVAE with its DLow sampler\n\n"
+    "  fftool export cpu/zara1/dr --out zara1_dr/        # a shipped model: its CVAE, DLow sampler and goal U-Net\n\n"
     "  fftool export dlow/8e1b07 --out mine/                # a DLow sampler you trained, over its CVAE"
 )
 @boundary
@@ -28,21 +28,36 @@ def export(
     dlow: Annotated[
         str | None, typer.Option("--dlow", help="The DLow sampler over that CVAE (dlow/…), for an artifact id.")
     ] = None,
+    goal_model: Annotated[
+        str | None,
+        typer.Option(
+            "--goal-model",
+            help="A goal variant's goal U-Net (goal/…, or a shipped name), exported beside it as goal_unet.onnx; "
+            "default: a shipped goal variant's own.",
+        ),
+    ] = None,
     root: RootOption = None,
 ) -> None:
     """Export a CVAE and its DLow sampler to ONNX (deterministic K futures; goals, desired speeds and groups are
-    inputs computed by the host), with a manifest of its inputs, units and where it came from."""
-    from fftool.api import load
-    from fftool.export import ONNX_FILE, check_out
+    inputs computed by the host), a goal variant's goal U-Net beside it, with a manifest of their inputs, units
+    and where they came from."""
+    from fftool import zoo
+    from fftool.api import load, load_goal_sampler
+    from fftool.export import GOAL_ONNX_FILE, ONNX_FILE, check_out
     from fftool.export import export as export_onnx
     from fftool.ui import log, progress
+    from fftool.variants import reads_goal
 
     check_out(out)
     chosen = load(model, root=root, device="cpu", dlow=dlow)
-    source = {"model": model, **chosen.fingerprints}
+    if goal_model is None and zoo.is_name(model) and reads_goal(chosen.variant):
+        goal_model = model
+    goals = None if goal_model is None else load_goal_sampler(goal_model, root=root, device="cpu")
+    source = {"model": model, **chosen.fingerprints} | ({"goal_model": goal_model} if goal_model else {})
     with progress() as bar:
         bar.add_task("export to ONNX (minutes: the 12 decoding steps are unrolled)", total=None)
-        done = export_onnx(chosen, out, source)
-    size = (done.folder / ONNX_FILE).stat().st_size / 1e6
-    log(f"wrote {done.folder}/{ONNX_FILE} ({size:.1f} MB) and manifest.json: {done.manifest['variant']}, K = "
-        f"{done.manifest['k']}, inputs {', '.join(done.manifest['inputs'])}")  # fmt: skip
+        done = export_onnx(chosen, out, source, goals)
+    files = [name for name in (ONNX_FILE, GOAL_ONNX_FILE) if (done.folder / name).is_file()]
+    size = sum((done.folder / name).stat().st_size for name in files) / 1e6
+    log(f"wrote {', '.join(files)} ({size:.1f} MB) and manifest.json to {done.folder}: {done.manifest['variant']}, "
+        f"K = {done.manifest['k']}, inputs {', '.join(done.manifest['inputs'])}")  # fmt: skip

@@ -93,9 +93,23 @@ def predict_goals(
     pred_len: int,
 ) -> Tensor:
     """(B, K, 2) world goals, the map's mode first, for observed paths (B, 8, 2)."""
-    zeros = torch.zeros(len(obs), device=obs.device, dtype=obs.dtype)
+    return goals_from_map(*goal_map(model, obs, scene, maps, cfg, pred_len), cfg, goals_cfg, gen)
+
+
+def goal_map(
+    model: GoalUNet, obs: Tensor, scene: Tensor, maps: SceneMaps, cfg: GoalConfig, pred_len: int
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The network's part of `predict_goals` (what `fftool export` puts in a graph): the goal map's logits
+    (B, S, S) in each path's crop, the crops' centres (B, 2) and rotations (B, 2, 2)."""
+    zeros = torch.zeros(obs.shape[0], device=obs.device, dtype=obs.dtype)
     x, center, R = goal_inputs(obs, scene, maps, cfg, zeros, zeros.bool(), pred_len)
-    logits = model(x)[:, -1]  # the goal's map
+    return model(x)[:, -1], center, R
+
+
+def goals_from_map(
+    logits: Tensor, center: Tensor, R: Tensor, cfg: GoalConfig, goals_cfg: GoalsConfig, gen: torch.Generator
+) -> Tensor:
+    """The sampling part of `predict_goals`: (B, K, 2) world goals drawn from the goal maps' logits (B, S, S)."""
     cells = sample_goals(
         logits,
         goals_cfg.k,
@@ -161,6 +175,7 @@ def load_model(goal: Artifact, device: torch.device) -> tuple[GoalUNet, GoalConf
     goal sampling its best epoch was chosen under."""
     with model_file(goal.file(GOAL_MODEL_FILE), device, "fftool train-goal --force") as saved:
         cfg = GoalConfig.model_validate(saved["config"])
-        model = build_model(cfg, saved["in_channels"]).to(device)
+        # channels last, as in training (stages/goal.py): its convolutions run about twice as fast on a CPU
+        model = build_model(cfg, saved["in_channels"]).to(device, memory_format=torch.channels_last)
         model.load_state_dict(saved["state_dict"])
         return model.eval(), cfg, GoalsConfig.model_validate(saved["sampling"])

@@ -55,8 +55,7 @@ class GoalUNet(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         B, C, H, W = x.shape  # (B, C, H, W) batch, channels, rows, cols
         multiple = 2**self.depth
-        # channels last: a CPU's convolutions of these few channels run about twice as fast, training too
-        x = F.pad(x, (0, -W % multiple, 0, -H % multiple)).contiguous(memory_format=torch.channels_last)
+        x = F.pad(x, (0, -W % multiple, 0, -H % multiple))
         skips = []
         for level, block in enumerate(self.encoder):
             x = block(x if level == 0 else F.max_pool2d(x, 2))
@@ -65,4 +64,4 @@ class GoalUNet(nn.Module):
         for up_conv, block in zip(self.up_convs, self.decoder):
             x = up_conv(F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False))
             x = block(torch.cat([x, skips.pop()], dim=1))
-        return self.head(x)[:, :, :H, :W].contiguous()  # (B, out_channels, H, W)
+        return self.head(x)[:, :, :H, :W]  # (B, out_channels, H, W)

@@ -55,7 +55,7 @@ def sample_scene(
     n, C, Hm, Wm = maps.shape
     cells = torch.arange(size, device=center.device, dtype=center.dtype)
     col, row = torch.meshgrid(cells, cells, indexing="xy")  # (S, S)
-    grid_cells = torch.stack([col, row], -1).reshape(1, -1, 2).expand(len(center), -1, -1)
+    grid_cells = torch.stack([col, row], -1).reshape(1, -1, 2).expand(center.shape[0], -1, -1)
     world = cells_to_world(grid_cells, center, R, res, size)  # (B, S*S, 2)
     map_cells = (world - origins[scene][:, None, :]) / map_res  # continuous (col, row) of the map
     normalised = torch.stack([map_cells[..., 0] / Wm, map_cells[..., 1] / Hm], -1) * 2 - 1
