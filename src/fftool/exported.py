@@ -101,11 +101,6 @@ class ExportedModel:
     def step_s(self) -> float:
         return float(self.manifest["step_s"])
 
-    @property
-    def source(self) -> str | None:
-        """The model it was exported from, as the user named it (a shipped name, an id or a folder)."""
-        return self.manifest.get("source", {}).get("model")
-
     def futures(self, past: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
         """(M, K, pred_len, 2) metres for the M agents of one scene observed at past (M, obs_len, 2) metres;
         goals (M, K, 2) for goal variants, sample k steering toward goal k."""
