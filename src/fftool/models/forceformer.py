@@ -51,7 +51,7 @@ class KeyCache:
         self.keys: Keys | None = None
 
     def append(self, new: Keys) -> Keys:
-        if torch.is_grad_enabled():
+        if torch.is_grad_enabled() or torch.compiler.is_exporting():  # an exported graph concatenates too
             self.keys = new if self.keys is None else self.keys.extend(new)
             self.length += new.k_self.shape[4]
             return self.keys
@@ -177,10 +177,13 @@ class AgentAwareAttention(nn.Module):
         by_agent = queries.q_self.reshape(B, H, Lq // agents, agents, dh).transpose(2, 3)  # (B, H, A, Tq, dh)
         own = (by_agent @ keys.k_self).permute(0, 1, 3, 4, 2)  # (B, H, Tq, Tk, A)
         if torch.compiler.is_exporting():  # an exported graph is functional: the same scores without in-place writes
-            same = torch.eye(agents, dtype=torch.bool, device=scores.device)[:, None, :]  # (A, 1, A)
-            own_grid = own.permute(0, 1, 2, 4, 3)[..., None].expand(-1, -1, -1, -1, -1, agents)  # (B,H,Tq,A,Tk,A)
-            grid = torch.where(same, own_grid, scores.view(B, H, Lq // agents, agents, Lk // agents, agents))
-            scores = grid.reshape(B, H, Lq, Lk)
+            # scattered into the flattened (A, Tk, A) block of each query step: entry (a, t, a) is a·Tk·A + t·A + a
+            Tq, Tk = Lq // agents, Lk // agents
+            a, t = torch.arange(agents, device=scores.device), torch.arange(Tk, device=scores.device)
+            index = (a[:, None] * (Tk * agents + 1) + t[None, :] * agents).reshape(1, 1, 1, -1)  # (1, 1, 1, A·Tk)
+            updates = own.permute(0, 1, 2, 4, 3).reshape(B, H, Tq, agents * Tk)
+            block = scores.reshape(B, H, Tq, agents * Tk * agents)
+            scores = block.scatter(-1, index.expand(B, H, Tq, -1), updates).reshape(B, H, Lq, Lk)
             if allowed is not None:
                 scores = scores.masked_fill(~allowed[:, None], float("-inf"))
         else:
