@@ -25,19 +25,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_online import STEP_S, walkers  # the same plaza (a script's own folder is on its path)
 
 ROOT = Path(__file__).resolve().parents[1]
-STEP_S = 0.4
 REFERENCE = "984b19e"  # the eager path before the sampling speed-ups
-
-
-def walkers(agents: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Start points (A, 2) on a 0.8 m lattice and velocities (A, 2) in m/s (as bench_online.py's)."""
-    rng = np.random.default_rng(seed)
-    side = int(np.ceil(np.sqrt(agents)))
-    start = np.stack(np.divmod(np.arange(agents), side), -1) * 0.8
-    heading = rng.uniform(0, 2 * np.pi, agents)
-    return start.astype(np.float64), 1.2 * np.column_stack([np.cos(heading), np.sin(heading)])
 
 
 def stream(name: str, agents: int, goals: str, updates: int) -> list[float]:

@@ -106,7 +106,8 @@ class ExportedModel:
         goals (M, K, 2) for goal variants, sample k steering toward goal k."""
         past = np.asarray(past, np.float32)[None]
         mask = np.ones(past.shape[:2], bool)
-        speed0, group = desired_speed_and_groups(past, mask, self.forces_config, self.step_s)
+        groups = "group" in self.manifest["inputs"]  # as the torch path: DBSCAN only for a variant that reads groups
+        speed0, group = desired_speed_and_groups(past, mask, self.forces_config, self.step_s, groups)
         values = {"past": past, "agent_mask": mask, "speed0": speed0.astype(np.float32), "group": group}
         if goals is not None:
             values["goals"] = np.asarray(goals, np.float32).transpose(1, 0, 2)[None]
