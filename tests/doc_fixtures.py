@@ -282,15 +282,12 @@ def code_blocks(document: Document) -> Iterator[tuple[int, Example]]:
 
 
 def stages_by_cell(output: str) -> dict[str, dict[str, set[str]]]:
-    """From a `fftool reproduce` log: for each table cell ("zara1 / re"), the stages built and cached."""
+    """From a `fftool reproduce` log's plan: for each table cell ("zara1 / re: build …; found …"), the stages
+    it builds and those it finds."""
     cells: dict[str, dict[str, set[str]]] = {}
-    current: dict[str, set[str]] | None = None
     for line in output.splitlines():
-        cell = re.fullmatch(r"\s*(\w+) / (\w+)\s*", line)
+        cell = re.fullmatch(r"\s*\w+ / (\w+): build (.*); found (.*)", line)
         if cell:
-            current = cells.setdefault(cell.group(2), {"built": set(), "cached": set()})
-            continue
-        stage = re.match(r"stage '(\w+)'(: building| is cached)", line.strip())
-        if stage and current is not None:
-            current["built" if stage.group(2) == ": building" else "cached"].add(stage.group(1))
+            built, found = ({name for name in part.split(", ") if name != "nothing"} for part in cell.group(2, 3))
+            cells[cell.group(1)] = {"built": built, "cached": found}
     return cells

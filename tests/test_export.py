@@ -18,9 +18,10 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import predictor_config
 from fftool.errors import UsageError
-from fftool.export import check_out
+from fftool.export import EXPORT
 from fftool.learning.observed import desired_speed_and_groups
 from fftool.online import OnlinePredictor
+from fftool.outputs import check_output
 
 from .test_dlow import _cfg
 
@@ -113,15 +114,15 @@ def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
     earlier.mkdir()
     (earlier / "model.onnx").write_bytes(b"")
     (earlier / "manifest.json").write_text(json.dumps({"format": "ONNX, opset 18"}))
-    check_out(earlier)
+    check_output(earlier, "--out", EXPORT)
     (earlier / "manifest.json").write_text("{}")
     with pytest.raises(UsageError, match="not an export's"):
-        check_out(earlier)
+        check_output(earlier, "--out", EXPORT)
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("mine")
     result = CliRunner().invoke(app, ["export", "cvae/0123456789ab", "--out", str(mine)])
-    assert result.exit_code == 2 and "not a model fftool exported" in result.output
+    assert result.exit_code == 2 and "did not write (notes.txt)" in result.output
     assert (mine / "notes.txt").read_text() == "mine"
 
 

@@ -674,12 +674,13 @@ def _forced_rebuild_sets_damaged_aside(w: World, mp: pytest.MonkeyPatch) -> Iter
 
 OKS = [
     Ok("out-empty-folder", "ablate --out an empty folder: the report is written there",
-       _ablate_into_empty_folder, ("report",)),
-    Ok("out-new-folder", "ablate --out a folder that does not exist yet", _ablate_into_new_folder, ("new",)),
+       _ablate_into_empty_folder, ("report", "artifacts/report/")),
+    Ok("out-new-folder", "ablate --out a folder that does not exist yet", _ablate_into_new_folder,
+       ("new", "artifacts/report/")),
     Ok("out-previous-report", "ablate --out a previous fftool report: replaced whole", _ablate_over_previous_report,
-       ("report",)),
+       ("report", "artifacts/report/")),
     Ok("out-default", "ablate without --out: <root>/reports/tiny replaced", _ablate_default_report,
-       ("artifacts/reports/tiny/",)),
+       ("artifacts/reports/tiny/", "artifacts/report/")),
     Ok("plot-rerun", "plot twice into one folder: fftool's own figures are replaced", _plot_twice, ("figures/",)),
     Ok("plot-beside-user-files", "plot into a folder holding other user files", _plot_next_to_user_files,
        ("figures/qualitative_zara1.png", "figures/density_zara1.png")),

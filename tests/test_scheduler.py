@@ -41,12 +41,12 @@ def _reproduce(profile: Path, root: Path, *extra: str) -> str:
 
 
 def _contents(root: Path) -> dict[str, dict[str, str]]:
-    """Every artifact's data files by sha256, except what records when and how fast it ran: manifests (dates,
-    times), TensorBoard event files (their names and records carry wall-clock times) and the timing columns
-    of training logs, which are compared without them."""
+    """Every stage artifact's data files by sha256, except what records when and how fast it ran: manifests
+    (dates, times), TensorBoard event files (their names and records carry wall-clock times) and the timing
+    columns of training logs, which are compared without them. Reports (their wall time) are compared apart."""
     found = {}
     for manifest in root.glob("*/*/manifest.json"):
-        if manifest.parts[-3] == "reports":
+        if manifest.parts[-3] in ("reports", "report"):
             continue
         files = json.loads(manifest.read_text())["files"]
         contents = {name: f["sha256"] for name, f in files.items() if not name.startswith("tensorboard/")}

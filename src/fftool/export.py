@@ -33,7 +33,7 @@ import torch
 from fftool import __version__
 from fftool.errors import UsageError
 from fftool.learning.batches import SceneBatch
-from fftool.outputs import replacing_folder
+from fftool.outputs import Kind, check_output, replacing_folder
 from fftool.variants import SPECS, reads_goal
 
 ONNX_FILE = "model.onnx"
@@ -114,19 +114,15 @@ def is_export(folder: Path) -> bool:
     return str(mark).startswith("ONNX")
 
 
-def check_out(out: Path) -> None:
-    """Refuse (UsageError) an --out that is a link, a file, or a folder holding anything but an earlier export."""
-    if out.is_symlink():
-        raise UsageError(f"--out {out}: a symbolic link; give a new folder")
-    blocked = next((parent for parent in out.parents if parent.exists() and not parent.is_dir()), None)
-    if blocked is not None:
-        raise UsageError(f"--out {out}: {blocked} is a file, not a folder")
-    if out.is_file() or (
-        out.is_dir() and not {p.name for p in out.iterdir()} <= {ONNX_FILE, GOAL_ONNX_FILE, MANIFEST_FILE}
-    ):
-        raise UsageError(f"--out {out}: exists and is not a model fftool exported; refusing to replace it")
-    if (out / MANIFEST_FILE).is_file() and not is_export(out):
-        raise UsageError(f"--out {out}: its manifest.json is not an export's; refusing to replace it")
+def _foreign(folder: Path) -> str | None:
+    """What an existing --out holds that is not an earlier export (None: it is one)."""
+    others = sorted(p.name for p in folder.iterdir() if p.name not in {ONNX_FILE, GOAL_ONNX_FILE, MANIFEST_FILE})
+    if others:
+        return f"holds files fftool did not write ({', '.join(others[:5])})"
+    return None if is_export(folder) else f"its {MANIFEST_FILE} is not an export's"
+
+
+EXPORT = Kind("an exported model", True, _foreign)
 
 
 @dataclass(frozen=True)
@@ -140,7 +136,7 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
     its prior's mean) to `out` as model.onnx + manifest.json, and a goal variant's `goal_sampler` (an
     fftool.api.GoalSampler) as goal_unet.onnx, built in a temporary folder beside it and moved into place
     whole. source: where it came from (name, ids)."""
-    check_out(out)
+    check_output(out, "--out", EXPORT)
     if goal_sampler is not None and not reads_goal(model.variant):
         raise UsageError(f"the {model.variant} variant reads no goal: it is exported without a goal U-Net")
     if model.sampler is None and not model.mean_codes("fair"):

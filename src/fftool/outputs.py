@@ -1,14 +1,16 @@
 """The one way fftool writes a file or folder in place of another: a temporary beside the target, created
 exclusively under an unpredictable name (so a link planted there is never followed), renamed over the target
-only once it is complete, and removed whatever happens."""
+only once it is complete, and removed whatever happens; and the one guard (`check_output`) that decides
+whether a user's path may be written at all."""
 
 from __future__ import annotations
 
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 _UMASK = os.umask(0o022)
@@ -58,15 +60,43 @@ def replacing_folder(out: Path) -> Iterator[Path]:
         shutil.rmtree(partial, ignore_errors=True)
 
 
-def check_place(out: Path, flag: str) -> None:
-    """Refuse (UsageError), before any work, an output path that could not be written: one under a file, a
-    folder where a file goes, or a link (replacing it would put a file where the user's link was)."""
+@dataclass(frozen=True)
+class Kind:
+    """A kind of output fftool writes where a user points it, and how to tell one fftool wrote: `foreign(out)`
+    says what an existing `out` holds that fftool did not write (None: all of it is fftool's)."""
+
+    noun: str  # "a prediction file", "a report folder", ...
+    folder: bool
+    foreign: Callable[[Path], str | None]
+
+
+def marked_file(noun: str, is_marked: Callable[[Path], bool]) -> Kind:
+    """A file kind recognised by the mark fftool leaves in it (metadata, a comment)."""
+    return Kind(noun, False, lambda path: None if is_marked(path) else "exists and was not written by fftool")
+
+
+def check_output(out: Path, flag: str, kind: Kind) -> None:
+    """The one guard of every user-facing writer, before any work and again just before the swap: refuse
+    (UsageError) a link (replacing it would put a file where the user's link was), a path under a file, a
+    file where a folder goes or the reverse, and anything existing that fftool did not write. An empty folder
+    may become a folder output."""
     from fftool.errors import UsageError
 
+    where = f"{flag} {out}"
     if out.is_symlink():
-        raise UsageError(f"{flag} {out}: a symbolic link; give the file it points to, or a new path")
-    if out.is_dir():
-        raise UsageError(f"{flag} {out}: a folder; give a file name")
+        raise UsageError(f"{where}: a symbolic link; give the path it points to, or a new one")
     blocked = next((parent for parent in out.parents if parent.exists() and not parent.is_dir()), None)
     if blocked is not None:
-        raise UsageError(f"{flag} {out}: {blocked} is a file, not a folder")
+        raise UsageError(f"{where}: {blocked} is a file, not a folder")
+    if kind.folder and out.exists() and not out.is_dir():
+        raise UsageError(f"{where}: a file; give a folder")
+    if not kind.folder and out.is_dir():
+        raise UsageError(f"{where}: a folder; give a file name")
+    if not out.exists() or (kind.folder and not any(out.iterdir())):
+        return
+    problem = kind.foreign(out)
+    if problem is not None:
+        raise UsageError(
+            f"{where}: {problem}; fftool replaces only {kind.noun} it wrote, refusing to overwrite it "
+            "(move those files out or give another path)"
+        )

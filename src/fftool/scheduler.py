@@ -1,14 +1,15 @@
-"""Build a grid's stage builds concurrently, in dependency order, in worker processes.
+"""The grid engine: every stage build a grid of cells needs, once each, in dependency order.
 
     cells (configurations) ──resolve──▶ nodes (stage, fingerprint) + edges (sources)
-    ready nodes ──submit──▶ executor (a local process pool, or a Dask cluster's) ──▶ artifacts in the store
+    ready nodes ──submit──▶ executor (this process, a local process pool, or a Dask cluster's) ──▶ the store
 
 Every node a grid needs is one stage build, found once however many cells share it; it is submitted
-when everything it reads is in the store, and runs `pipeline.run(..., upstream=False)` in a worker,
-exactly as `fftool <stage command>` would. The artifact store makes concurrent builders safe (atomic
-installs, per-fingerprint locks; a killed worker leaves only an `.incomplete/` folder that the next
-build removes), so this module only orders work. A failed build stops the nodes that need it; the
-others go on, and the outcome says which failed, why, and which were not built because of it.
+when everything it reads is in the store, and runs `pipeline.run(..., upstream=False)`, exactly as
+`fftool <stage command>` would: in this process with one job (live progress, the first failure stops the
+run), else in workers. The artifact store makes concurrent builders safe (atomic installs,
+per-fingerprint locks; a killed worker leaves only an `.incomplete/` folder that the next build removes),
+so this module only orders work. With workers, a failed build stops the nodes that need it; the others go
+on, and the outcome says which failed, why, and which were not built because of it.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExe
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
+from typing import Any
 
 from fftool import pipeline
 from fftool.artifacts.store import ArtifactStore
@@ -95,16 +97,21 @@ def log_file(root: Path, node: Node) -> Path:
     return root / LOGS / f"{node.stage}-{node.fingerprint[:16]}.log"
 
 
-def build_node(root: str, node: Node, device: str, threads: int) -> float:
-    """Build one node in a worker process (its output into `<root>/.logs/`); the seconds it took."""
+def build_node(root: str, node: Node, device: str, threads: int | None, to_log: bool = True) -> float:
+    """Build one node (in a worker, its output into `<root>/.logs/`; in this process, on the terminal) with
+    `threads` torch threads (None: as the process has them); the seconds it took."""
     import torch
 
-    torch.set_num_threads(threads)
-    log_path = log_file(Path(root), node)
-    log_path.parent.mkdir(parents=True, exist_ok=True)
+    if threads:
+        torch.set_num_threads(threads)
     started = time.perf_counter()
-    # stdout and stderr (rich's consoles follow them) into the build's log
-    with open(log_path, "a") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+    with contextlib.ExitStack() as stack:
+        if to_log:  # stdout and stderr (rich's consoles follow them) into the build's log
+            log_path = log_file(Path(root), node)
+            log_path.parent.mkdir(parents=True, exist_ok=True)
+            log = stack.enter_context(open(log_path, "a"))
+            stack.enter_context(contextlib.redirect_stdout(log))
+            stack.enter_context(contextlib.redirect_stderr(log))
         pipeline.run(
             node.cfg,
             ArtifactStore(Path(root)),
@@ -116,16 +123,31 @@ def build_node(root: str, node: Node, device: str, threads: int) -> float:
     return time.perf_counter() - started
 
 
+class InlineExecutor(Executor):
+    """Runs each submitted build at once in this process: the grid of one job. An exception is kept in its
+    future like a worker's; an interrupt (Ctrl-C) is not caught."""
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        future: Future[Any] = Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except Exception as exc:
+            future.set_exception(exc)
+        return future
+
+
 def build_all(
     nodes: dict[Key, Node],
     store: ArtifactStore,
     executor: Executor,
     device: str,
-    threads: int,
+    threads: int | None,
     on_event: Callable[[str, Node, str], None] = lambda event, node, detail: None,
 ) -> Outcome:
-    """Build the missing nodes on `executor`, each once its inputs are in the store; never raises for a
-    failed build (see Outcome). `on_event(event, node, detail)`: "start", "done" (seconds), "failed" (reason)."""
+    """Build the missing nodes on `executor`, each once its inputs are in the store; in workers, never raises
+    for a failed build (see Outcome); in this process (InlineExecutor), the first failure is raised as it
+    came. `on_event(event, node, detail)`: "start", "done" (seconds), "failed" (reason)."""
+    inline = isinstance(executor, InlineExecutor)
     outcome = Outcome()
     missing = {key for key in nodes if store.lookup(*key) is None}
     running: dict[Future[float], Key] = {}
@@ -136,8 +158,8 @@ def build_all(
             if node.needs & (missing | set(running.values())):
                 continue
             missing.discard(key)
-            running[executor.submit(build_node, str(store.root), node, device, threads)] = key
             on_event("start", node, "")
+            running[executor.submit(build_node, str(store.root), node, device, threads, not inline)] = key
         if not running:  # what is left needs a build that failed
             break
         finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -146,7 +168,9 @@ def build_all(
             try:
                 outcome.built[key] = future.result()
                 on_event("done", nodes[key], f"{outcome.built[key]:.1f} s")
-            except Exception as exc:  # a worker's failure is reported, never raised: the others go on
+            except Exception as exc:  # a worker's failure is reported, not raised: the others go on
+                if inline:  # one job: stop at the first failure, with its own error and exit code
+                    raise
                 outcome.failed[key] = _one_line(exc)
                 on_event("failed", nodes[key], outcome.failed[key])
         _block_dependants(nodes, missing, outcome)
@@ -193,27 +217,49 @@ def dask_pool(address: str) -> Iterator[Executor]:
         yield client.get_executor(pure=False)
 
 
+@contextlib.contextmanager
+def _executor(jobs: int, address: str | None) -> Iterator[Executor]:
+    if address:
+        with dask_pool(address) as pool:
+            yield pool
+    elif jobs > 1:
+        with local_pool(jobs) as pool:
+            yield pool
+    else:
+        yield InlineExecutor()
+
+
 def build_grid(
     cells: Iterable[tuple[PipelineConfig, str]],
     store: ArtifactStore,
     device: str,
-    jobs: int,
+    jobs: int = 1,
     threads: int | None = None,
     address: str | None = None,
+    names: Iterable[str] = (),
 ) -> list[dict[Key, float]]:
-    """Build every missing stage the cells need, `jobs` at a time on this machine or on the Dask cluster
-    at `address`; per cell, the builds it was first to need and their seconds. Raises one FftoolError naming
-    what failed once all that could be built is built (each failure, its reason and log, and what it held
-    back are logged first)."""
+    """Build every missing stage the cells need: one at a time in this process (jobs 1; threads as given,
+    else torch's own), `jobs` at a time in local workers, or on the Dask cluster at `address`; per cell, the
+    builds it was first to need and their seconds. With workers, raises one FftoolError naming what failed
+    once all that could be built is built (each failure, its reason and log, and what it held back are logged
+    first); in this process, the first failure as it came."""
     from fftool.errors import FftoolError
     from fftool.ui import log, warn
 
     grid = plan(cells)
     nodes = grid.nodes
-    per_job = threads_per_job(jobs, threads)
+    inline = jobs == 1 and not address
+    per_job = threads if inline else threads_per_job(jobs, threads)
     where = f"the Dask cluster at {address}" if address else f"{jobs} local worker processes"
     todo = sum(store.lookup(*key) is None for key in nodes)
-    log(f"{todo} of {len(nodes)} stage builds to run on {where}, {per_job} torch thread(s) each")
+    firsts = _first_needs(grid, store)
+    for name, keys, first in zip(names, grid.cells, firsts):
+        built, found = [k[0] for k in keys if k in first], [k[0] for k in keys if k not in first]
+        log(f"{name}: build {', '.join(built) or 'nothing'}; found {', '.join(found) or 'nothing'}")
+    if inline:
+        log(f"{todo} of {len(nodes)} stage builds to run in this process")
+    else:
+        log(f"{todo} of {len(nodes)} stage builds to run on {where}, {per_job} torch thread(s) each")
 
     def report(event: str, node: Node, detail: str) -> None:
         if event == "failed":
@@ -221,7 +267,7 @@ def build_grid(
         else:
             log(f"{event:>5} {node.label}" + (f" ({detail})" if detail else ""))
 
-    with dask_pool(address) if address else local_pool(jobs) as executor:
+    with _executor(jobs, address) as executor:
         outcome = build_all(nodes, store, executor, device, per_job, report)
     for key, needed in outcome.blocked.items():
         warn(f"not built: {nodes[key].label} (it needs {needed}, which failed)")
@@ -231,9 +277,15 @@ def build_grid(
             f"{len(outcome.failed)} of {todo} stage builds failed ({labels}) and {len(outcome.blocked)} were not "
             f"built because of them; the {len(outcome.built)} others are in the store; run again to retry"
         )
-    claimed: set[Key] = set()
-    per_cell = []
+    return [{key: outcome.built[key] for key in first} for first in firsts]
+
+
+def _first_needs(grid: Plan, store: ArtifactStore) -> list[list[Key]]:
+    """Per cell, the missing builds it is the first cell to need (a build shared by later cells is theirs
+    to find, as if the cells ran one after another)."""
+    claimed: set[Key] = {key for key in grid.nodes if store.lookup(*key) is not None}
+    firsts = []
     for keys in grid.cells:
-        per_cell.append({key: outcome.built[key] for key in keys if key in outcome.built and key not in claimed})
+        firsts.append([key for key in keys if key not in claimed])
         claimed.update(keys)
-    return per_cell
+    return firsts

@@ -15,7 +15,8 @@ if not out_console.is_terminal:  # piped or captured: do not squeeze tables into
 
 
 def log(message: str) -> None:
-    err_console.print(message)
+    """One line on stderr, never broken by rich (the terminal wraps it; a log file keeps it greppable)."""
+    err_console.print(message, soft_wrap=True)
 
 
 def warn(message: str) -> None:

@@ -43,12 +43,13 @@ def export(
     and where they came from."""
     from fftool import zoo
     from fftool.api import load, load_goal_sampler
-    from fftool.export import GOAL_ONNX_FILE, ONNX_FILE, check_out
+    from fftool.export import EXPORT, GOAL_ONNX_FILE, ONNX_FILE
     from fftool.export import export as export_onnx
+    from fftool.outputs import check_output
     from fftool.ui import log, progress
     from fftool.variants import reads_goal
 
-    check_out(out)
+    check_output(out, "--out", EXPORT)
     chosen = load(model, root=root, device="cpu", dlow=dlow)
     if goal_model is None and zoo.is_name(model) and reads_goal(chosen.variant):
         goal_model = model

@@ -120,7 +120,8 @@ def predict(
     from fftool.api import load, load_goal_sampler, predict_tracks
     from fftool.dataset.trackfiles import Columns, read_goals, read_tracks
     from fftool.errors import UsageError
-    from fftool.reporting.predictions import check_out, prediction_figure, write_predictions
+    from fftool.outputs import check_output
+    from fftool.reporting.predictions import PREDICTIONS, prediction_figure, write_predictions
     from fftool.ui import log, warn
     from fftool.variants import reads_goal
     from fftool.zoo import is_name
@@ -130,11 +131,11 @@ def predict(
         raise UsageError(f"--time-step {time_step}: expected seconds per unit of the time column, above 0")
     if (scene_image is None) != (homography is None):
         raise UsageError("--scene-image and --homography go together: the image and its world->pixel matrix")
-    check_out(out)
+    check_output(out, "--out", PREDICTIONS)
     if plot is not None:
-        from fftool.reporting.plots import check_figure_out
+        from fftool.reporting.plots import FIGURE
 
-        check_figure_out(plot, "--plot")
+        check_output(plot, "--plot", FIGURE)
     if animate is not None:
         from fftool.reporting.animation import check_out as check_animation
 

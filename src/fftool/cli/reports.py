@@ -117,15 +117,6 @@ def reproduce(
     profile = chosen.stem if chosen else "defaults"
     reports_dir = store.root / cfg.report.out_dir  # an absolute out_dir replaces the root
     out_dir = ablation.check_report_folder(out or reports_dir / profile, store.root, reports_dir)  # before any work
-    prebuild = None
-    if jobs > 1 or scheduler:
-        from fftool.scheduler import build_grid
-
-        prebuild = lambda grid: build_grid(grid, store, device, jobs, threads, scheduler)  # noqa: E731
-    elif threads:
-        import torch
-
-        torch.set_num_threads(threads)
     report, results, minutes = ablation.reproduce(
         cfg,
         store,
@@ -135,8 +126,7 @@ def reproduce(
         out_dir,
         profile,
         command="fftool " + " ".join(sys.argv[1:]),
-        on_cell=lambda b, p, s: log(f"[bold]{b} / {p}{'' if s is None else f' / seed {s}'}[/]"),
-        prebuild=prebuild,
+        workers=ablation.Workers(jobs, threads, scheduler),
     )
     for table in [*report_tables(report.parent), run_summary(results)]:
         out_console.print(table)

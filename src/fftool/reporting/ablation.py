@@ -1,10 +1,11 @@
 """The ablation: every (seed, benchmark, predictor) evaluation built through the DAG, then the paper's tables.
 
-`run` asks the pipeline for one `evaluate` artifact per cell (a grid seed is one more parameter, set by
-`config.seeded_config`, so each seed's models are cached like any other): whatever is missing upstream
-(tracks, forces, the goal U-Net, goal samples, the CVAE of that variant) is built first and whatever exists
-is reused. `write_report` scores every evaluation with its intervals (reporting/scores.py), renders Tables
-II-VI and replaces the report folder atomically, and only a folder fftool may replace
+`run` hands the grid engine (fftool.scheduler) one `evaluate` build per cell (a grid seed is one more
+parameter, set by `config.seeded_config`, so each seed's models are cached like any other): whatever is
+missing upstream (tracks, forces, the goal U-Net, goal samples, the CVAE of that variant) is built first,
+once however many cells need it, and whatever exists is reused. `build_report` makes the report an artifact
+of the store (every evaluation scored with its intervals by reporting/scores.py, Tables II-VI, figures),
+and `publish` copies it into the report folder, replaced whole and only where the output guard lets it
 (`check_report_folder`): new, empty, or a previous report (its marker file).
 """
 
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import os
 import platform
+import shutil
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -21,13 +23,15 @@ from typing import Any
 import pandas as pd
 import torch
 
-from fftool import __version__, pipeline
-from fftool.artifacts.store import ArtifactStore
+from fftool import __version__, pipeline, scheduler
+from fftool.artifacts.hashing import fingerprint
+from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
 from fftool.errors import UsageError
-from fftool.outputs import replacing_folder
+from fftool.outputs import Kind, check_output, replacing_folder
 from fftool.reporting import claims, score_plots, scores, tables
 from fftool.stages.evaluate import METRIC_DEFINITIONS, codes_of
+from fftool.ui import log
 from fftool.variants import PREDICTORS
 
 
@@ -51,6 +55,10 @@ class Cell:
     predictor: str
     cfg: PipelineConfig
 
+    @property
+    def name(self) -> str:
+        return f"{self.benchmark} / {self.predictor}" + ("" if self.seed is None else f" / seed {self.seed}")
+
 
 def cells(cfg: PipelineConfig, benchmarks: Iterable[str], variants: Iterable[str]) -> list[Cell]:
     """Every seed × benchmark × predictor of the grid, in report order, with the configuration it runs."""
@@ -62,9 +70,14 @@ def cells(cfg: PipelineConfig, benchmarks: Iterable[str], variants: Iterable[str
     ]
 
 
-# Builds what the cells need ahead of `run`, e.g. concurrently (fftool.scheduler.build_grid); returns, per
-# cell, the (stage, fingerprint) builds it was first to need and the seconds each took.
-Prebuild = Callable[[list[tuple[PipelineConfig, str]]], list[dict[tuple[str, str], float]]]
+@dataclass(frozen=True)
+class Workers:
+    """Where the grid's stage builds run (scheduler.build_grid): this process (jobs 1), local workers, or
+    the Dask cluster at `address`; torch threads per build (None: shared out, or torch's own with one job)."""
+
+    jobs: int = 1
+    threads: int | None = None
+    address: str | None = None
 
 
 def run(
@@ -73,36 +86,28 @@ def run(
     runtime: pipeline.Runtime,
     benchmarks: Iterable[str],
     variants: Iterable[str],
-    on_cell: Callable[[str, str, int | None], None] | None = None,
-    prebuild: Prebuild | None = None,
+    workers: Workers = Workers(),
 ) -> list[dict[str, Any]]:
-    """Build (or reuse) the evaluation of each seed × benchmark × predictor; their manifest stats with ids.
-
-    Each cell's `built_now` lists the stages it was first to need that were not in the store, and its
-    `cell_seconds` the time they took: with `prebuild` (parallel builds) their build times, else the cell's
-    wall time.
-    """
+    """Build (or reuse) the evaluation of each seed × benchmark × predictor through the grid engine; their
+    manifest stats with ids. Each cell's `built_now` lists the stages it was first to need that were not in
+    the store, and its `cell_seconds` the time they took."""
     grid = cells(cfg, benchmarks, variants)
-    prebuilt = prebuild([(cell.cfg, cell.benchmark) for cell in grid]) if prebuild else None
+    built_now = scheduler.build_grid(
+        [(cell.cfg, cell.benchmark) for cell in grid], store, runtime.device, workers.jobs, workers.threads,
+        workers.address, names=[cell.name for cell in grid],
+    )  # fmt: skip
     results = []
-    for i, cell in enumerate(grid):
-        if on_cell:
-            on_cell(cell.benchmark, cell.predictor, cell.seed)
-        started = time.perf_counter()
-        built = pipeline.run(cell.cfg, store, ["evaluate"], runtime=runtime, benchmark=cell.benchmark)
+    for cell, new in zip(grid, built_now):
+        built = pipeline.run(cell.cfg, store, ["evaluate"], runtime=runtime, upstream=False, benchmark=cell.benchmark)
         artifact = built["evaluate"]
-        if prebuilt is None:
-            new, took = list(built.new), time.perf_counter() - started
-        else:
-            new, took = [stage for stage, _ in prebuilt[i]], sum(prebuilt[i].values())
         results.append(
             artifact.manifest.stats
             | {
                 "artifact": artifact.id,
                 "grid_seed": cell.seed,
                 "windows": built["windows"].id,
-                "built_now": new,
-                "cell_seconds": took,
+                "built_now": [stage for stage, _ in new],
+                "cell_seconds": sum(new.values()),
             }
         )
     return results
@@ -117,16 +122,16 @@ def reproduce(
     out_dir: Path,
     profile: str,
     command: str,
-    on_cell: Callable[[str, str, int | None], None] | None = None,
-    prebuild: Prebuild | None = None,
+    workers: Workers = Workers(),
 ) -> tuple[Path, list[dict[str, Any]], float]:
-    """`fftool reproduce`: build or reuse every cell (`run`), then write the report with its figures into
-    `out_dir` (checked by `check_report_folder`); the report's path, the cells' results and the minutes taken."""
+    """`fftool reproduce`: build or reuse every cell (`run`), then the report (an artifact of the store, reused
+    when nothing it reads changed), published into `out_dir` (checked by `check_report_folder`); the report's
+    path, the cells' results and the minutes taken."""
     started = time.perf_counter()
-    results = run(cfg, store, runtime, benchmarks, variants, on_cell=on_cell, prebuild=prebuild)
-    draw = lambda folder: figures(cfg, store, results, folder)  # noqa: E731
-    report = write_report(cfg, store, results, out_dir, profile, command, time.perf_counter() - started, draw)
-    return report, results, (time.perf_counter() - started) / 60
+    results = run(cfg, store, runtime, benchmarks, variants, workers)
+    report = build_report(cfg, store, results, profile, command, started)
+    publish(report, out_dir, f"--out {out_dir}")
+    return out_dir / "report.md", results, (time.perf_counter() - started) / 60
 
 
 def figures(cfg: PipelineConfig, store: ArtifactStore, results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
@@ -188,11 +193,30 @@ def _seeds(cfg: PipelineConfig) -> str:
 REPORT_MARKER = ".fftool-report"  # marks a folder as a report fftool wrote and may replace
 
 
+def _foreign(folder: Path) -> str | None:
+    """What a report folder holds that its report did not write: a folder without the marker, or files the
+    marker does not list (anything a user added is named and kept)."""
+    marker = folder / REPORT_MARKER
+    if not marker.is_file():
+        return f"refused, the folder holds files fftool did not write (no {REPORT_MARKER} marker)"
+    written = set(marker.read_text().splitlines()[1:])
+    found = {path.relative_to(folder).as_posix() for path in folder.rglob("*") if not path.is_dir()}
+    foreign = sorted(found - written - {REPORT_MARKER})
+    if not foreign:
+        return None
+    shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+    return f"refused, the report folder holds files its report did not write ({shown})"
+
+
+REPORT_FOLDER = Kind("a report folder", True, _foreign)
+
+
 def check_report_folder(out_dir: Path, artifact_root: Path, reports_dir: Path) -> Path:
     """`out_dir` resolved, if a report may replace it; UsageError otherwise (nothing is touched).
 
     Refused: the artifact root and anything inside it but `reports_dir`, the current and the home
-    directory, any parent of those, a file, and a folder holding anything but a previous report.
+    directory, any parent of those, and what the output guard refuses (a file, a link, a folder holding
+    anything but a previous report).
     """
     target, root = out_dir.expanduser().resolve(), artifact_root.resolve()
     flag = f"--out {out_dir}"
@@ -205,32 +229,52 @@ def check_report_folder(out_dir: Path, artifact_root: Path, reports_dir: Path) -
             raise UsageError(f"{flag}: refused, it is {what} or holds it; give a folder of its own for the report")
     if target.is_relative_to(root) and not target.is_relative_to(reports_dir.resolve()):
         raise UsageError(f"{flag}: refused, it lies inside the artifact root {root}; reports go under {reports_dir}")
-    _check_replaceable(target, flag)
+    check_output(out_dir.expanduser(), "--out", REPORT_FOLDER)
     return target
 
 
-def _check_replaceable(target: Path, flag: str) -> None:
-    """Only a folder that is new, empty, or a report whose marker lists every file in it may be replaced:
-    anything a user added to a report folder is named and kept."""
-    if target.is_symlink() or (target.exists() and not target.is_dir()):
-        raise UsageError(f"{flag}: refused, it is a file or a link; give a folder")
-    if not target.is_dir() or not any(target.iterdir()):
-        return
-    marker = target / REPORT_MARKER
-    if not marker.is_file():
-        raise UsageError(
-            f"{flag}: refused, the folder holds files fftool did not write (no {REPORT_MARKER} marker); "
-            "give a new or empty folder"
+REPORT_KIND, REPORT_VERSION = "report", 1  # the report's artifact in the store
+
+
+def build_report(
+    cfg: PipelineConfig,
+    store: ArtifactStore,
+    results: list[dict[str, Any]],
+    profile: str,
+    command: str,
+    started: float,
+) -> Artifact:
+    """The report of these evaluations as an artifact of the store (written atomically, like a stage's), or
+    the one already there: its fingerprint is the evaluations', the configuration's, the profile's name and
+    the command's, so a re-run that changes none of them renders nothing."""
+    params = {"profile": profile, "command": command, "config": cfg.model_dump(mode="json")}
+    inputs = {_cell_name(r): store.resolve(r["artifact"]).fingerprint for r in results}
+    fp = fingerprint(REPORT_KIND, REPORT_VERSION, params, inputs)
+    found = store.lookup(REPORT_KIND, fp)
+    if found is not None:
+        log(f"report {found.id} is cached - publishing it")
+        return found
+    with store.build(REPORT_KIND, fp, schema_version=REPORT_VERSION, params=params, inputs=inputs) as ctx:
+        draw = lambda folder: figures(cfg, store, results, folder)  # noqa: E731
+        write_report(cfg, store, results, ctx.dir, profile, command, time.perf_counter() - started, draw)
+        ctx.stats = {"cells": len(results)}
+    assert ctx.artifact is not None
+    return ctx.artifact
+
+
+def publish(report: Artifact, out_dir: Path, flag: str) -> None:
+    """Copy a report artifact's files into `out_dir`, replaced whole and only if the output guard lets it
+    (checked again just before the swap: a long run may have let a user add files), with a marker listing them."""
+    check_output(out_dir, flag, REPORT_FOLDER)
+    with replacing_folder(out_dir) as partial:
+        for name in sorted(report.manifest.files):
+            (partial / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(report.path / name, partial / name)
+        heading = (
+            f"written by fftool {__version__} from {report.id}; the next report replaces this folder, these files:"
         )
-    written = set(marker.read_text().splitlines()[1:])
-    found = {path.relative_to(target).as_posix() for path in target.rglob("*") if not path.is_dir()}
-    foreign = sorted(found - written - {REPORT_MARKER})
-    if foreign:
-        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
-        raise UsageError(
-            f"{flag}: refused, the report folder holds files its report did not write ({shown}); "
-            "move them out or give another folder"
-        )
+        (partial / REPORT_MARKER).write_text("\n".join([heading, *sorted(report.manifest.files)]) + "\n")
+        check_output(out_dir, flag, REPORT_FOLDER)
 
 
 def write_report(
@@ -243,11 +287,9 @@ def write_report(
     seconds: float,
     draw: Callable[[Path], list[Path]] | None = None,
 ) -> Path:
-    """Tables II-VI (md, csv, tex), results.csv (one row per evaluation, its own intervals) and report.md; the
-    old report is replaced only when complete. Every metric is recomputed from the saved predictions.
-
-    `out_dir` must have passed `check_report_folder`; it is checked again here, just before the swap.
-    """
+    """Tables II-VI (md, csv, tex), results.csv (one row per evaluation, its own intervals), the figures and
+    report.md into `out_dir` (a build folder: `build_report` makes it an artifact). Every metric is recomputed
+    from the saved predictions."""
     block = cfg.report.block_length(cfg.windows)
     scored, rows = scores.score(store, results, cfg.report, cfg.evaluate.collision_threshold_m, block)
     grid, text = tables.Grid(scored, cfg.report.confidence, _codes(cfg)), caption(cfg, profile)
@@ -261,21 +303,15 @@ def write_report(
     ]
     claimed = claims.claims_table(grid, cfg.evaluate.protocol)  # all five benchmarks only
     built += [claimed] if claimed is not None else []
-    _check_replaceable(out_dir, f"report folder {out_dir}")
-    with replacing_folder(out_dir) as partial:
-        tables.write(built, partial, _preamble(command, seconds, results), _definitions())
-        pd.DataFrame(rows).to_csv(partial / "results.csv", index=False)
-        goal_module = goal_module_rows(cfg, store, results)
-        if goal_module:
-            pd.DataFrame(goal_module).to_csv(partial / "goal_fde.csv", index=False)
-        title = f"{profile}: minFDE and NC per benchmark ({cfg.evaluate.protocol} protocol), {grid.level:.0%} intervals"
-        drawn = [score_plots.scores_figure(grid, partial / "scores.png", title), *(draw(partial) if draw else [])]
-        with (partial / "report.md").open("a") as report:
-            report.writelines(f"\n![{path.stem}]({path.name})\n" for path in drawn)
-        written = sorted(path.relative_to(partial).as_posix() for path in partial.rglob("*") if not path.is_dir())
-        heading = f"written by fftool {__version__}; the next report replaces this folder and these files:"
-        (partial / REPORT_MARKER).write_text("\n".join([heading, *written]) + "\n")
-        _check_replaceable(out_dir, f"report folder {out_dir}")  # it may have changed during a long run
+    tables.write(built, out_dir, _preamble(command, seconds, results), _definitions())
+    pd.DataFrame(rows).to_csv(out_dir / "results.csv", index=False)
+    goal_module = goal_module_rows(cfg, store, results)
+    if goal_module:
+        pd.DataFrame(goal_module).to_csv(out_dir / "goal_fde.csv", index=False)
+    title = f"{profile}: minFDE and NC per benchmark ({cfg.evaluate.protocol} protocol), {grid.level:.0%} intervals"
+    drawn = [score_plots.scores_figure(grid, out_dir / "scores.png", title), *(draw(out_dir) if draw else [])]
+    with (out_dir / "report.md").open("a") as report:
+        report.writelines(f"\n![{path.stem}]({path.name})\n" for path in drawn)
     return out_dir / "report.md"
 
 

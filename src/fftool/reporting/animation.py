@@ -25,7 +25,7 @@ from fftool.dataset.scene_images import SceneImage, project, read_scene
 from fftool.dataset.scenes import SOURCE_SCENE
 from fftool.errors import FftoolError, UsageError
 from fftool.learning.batches import AgentWindows, load_agent_windows
-from fftool.outputs import check_place, replacing_file
+from fftool.outputs import check_output, marked_file, replacing_file
 from fftool.reporting import plots
 
 FORMATS = ("gif", "mp4")
@@ -197,9 +197,7 @@ def check_out(out: Path) -> str:
         raise UsageError(f"--animate {out}: expected a file ending in .gif or .mp4")
     if kind == "mp4" and ffmpeg() is None:
         raise UsageError(f"--animate {out}: MP4 needs ffmpeg: pip install 'fftool[video]' (imageio-ffmpeg), or a .gif")
-    check_place(out, "--animate")
-    if out.exists() and not _written_by_fftool(out):
-        raise UsageError(f"{out}: exists and was not written by fftool; refusing to overwrite it (choose another)")
+    check_output(out, "--animate", ANIMATION)
     return kind
 
 
@@ -255,6 +253,9 @@ def _written_by_fftool(path: Path) -> bool:
             return image.info.get("comment", b"").decode(errors="replace").startswith("fftool ")
     except OSError:
         return False
+
+
+ANIMATION = marked_file("an animation", _written_by_fftool)
 
 
 def animate_test(

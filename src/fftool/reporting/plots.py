@@ -25,9 +25,9 @@ from fftool.artifacts.store import Artifact
 from fftool.config import ReportConfig, WindowsConfig
 from fftool.dataset.scene_images import SceneImage, project, read_scene
 from fftool.dataset.scenes import SOURCE_SCENE
-from fftool.errors import FftoolError, UsageError
+from fftool.errors import FftoolError
 from fftool.learning.batches import AgentWindows, load_agent_windows
-from fftool.outputs import check_place, replacing_file
+from fftool.outputs import check_output, marked_file, replacing_file
 from fftool.paper import PAPER_NAMES
 from fftool.science.bootstrap import Resampling, binned_mean_intervals, window_draws, windows_of
 
@@ -37,22 +37,13 @@ COLOURS = {"cv": "#7f7f7f", "baseline": "#1f77b4", "goal": "#2ca02c", "dr": "#ff
 
 def save_figure(fig: plt.Figure, out: Path, **savefig: object) -> Path:
     """Write `fig` as PNG atomically; never overwrite a file fftool did not write (UsageError, exit 2)."""
-    check_figure_out(out)
+    check_output(out, "--out", FIGURE)
     try:
         with replacing_file(out) as partial:
             fig.savefig(partial, format="png", metadata={"Software": SOFTWARE}, **savefig)
     finally:
         plt.close(fig)
     return out
-
-
-def check_figure_out(out: Path, flag: str = "--out") -> None:
-    """Refuse (UsageError) a figure path that cannot be written or holds a file fftool did not write."""
-    check_place(out, flag)
-    if out.exists() and not _written_by_fftool(out):
-        raise UsageError(
-            f"{out}: exists and was not written by fftool; refusing to overwrite it (choose another --out)"
-        )
 
 
 def _written_by_fftool(path: Path) -> bool:
@@ -63,6 +54,9 @@ def _written_by_fftool(path: Path) -> bool:
             return str(image.info.get("Software", "")).startswith("fftool ")
     except (OSError, UnidentifiedImageError):
         return False
+
+
+FIGURE = marked_file("a figure", _written_by_fftool)
 
 
 @dataclass(frozen=True)
@@ -180,7 +174,7 @@ def figures(
         panels.append((drawn, data, chosen, how, out_dir / f"qualitative_{benchmark}.png"))
     density = out_dir / density_file
     for out in (density, *(panel[-1] for panel in panels)):
-        check_figure_out(out)
+        check_output(out, "--out", FIGURE)
     frames = {benchmark: {e.predictor: e.frame for e in predictors} for benchmark, predictors in evaluations.items()}
     every = [e for predictors in evaluations.values() for e in predictors]
     title = f"{', '.join(evaluations)} ({part} part): {setting(every)}"

@@ -18,8 +18,7 @@ import pyarrow.parquet as pq
 
 from fftool import __version__
 from fftool.dataset.scene_images import SceneImage, project
-from fftool.errors import UsageError
-from fftool.outputs import check_place, replacing_file
+from fftool.outputs import check_output, marked_file, replacing_file
 
 MARK = b"fftool.predictions"  # Parquet metadata key: the file is a prediction fftool wrote and may replace
 
@@ -31,20 +30,12 @@ def _written_by_fftool(path: Path) -> bool:
         return False
 
 
-def check_out(out: Path) -> None:
-    """Refuse (UsageError) an --out that exists and is not an fftool prediction file, or is a symbolic link
-    (replacing it would put a file where the user's link was, whatever it points to)."""
-    check_place(out, "--out")
-    if out.exists() and not _written_by_fftool(out):
-        raise UsageError(
-            f"--out {out}: exists and is not a prediction file fftool wrote; refusing to overwrite it "
-            "(choose another --out)"
-        )
+PREDICTIONS = marked_file("a prediction file", _written_by_fftool)
 
 
 def write_predictions(table: pd.DataFrame, out: Path, about: Mapping[str, object]) -> Path:
     """Write the predictions as Parquet atomically, with `about` (model, k, seed, ...) in the metadata."""
-    check_out(out)
+    check_output(out, "--out", PREDICTIONS)
     arrow = pa.Table.from_pandas(table, preserve_index=False)
     meta = dict(arrow.schema.metadata or {}) | {MARK: json.dumps({"fftool": __version__, **about}).encode()}
     with replacing_file(out) as partial:

@@ -308,12 +308,15 @@ def _paper(text: object, position: int) -> str:
 def run_summary(results: list[dict]) -> Table:
     """What a reproduce/ablate run did per cell: which stages it built, which it found, how long it took."""
     table = Table(title="run summary", title_justify="left", box=box.SIMPLE_HEAD, caption_justify="left")
-    for name in ("benchmark", "predictor", "protocol", "built now", "minutes", "evaluation"):
-        table.add_column(name, justify="right" if name == "minutes" else "left")
+    seeded = any(r["grid_seed"] is not None for r in results)
+    for name in ("benchmark", "predictor", *(["seed"] if seeded else []), "protocol", "built now", "minutes"):
+        table.add_column(name, justify="right" if name in ("seed", "minutes") else "left")
+    table.add_column("evaluation")
     for r in results:
         built = ", ".join(r["built_now"]) or "[dim]nothing (all reused)[/]"
         minutes = f"{r['cell_seconds'] / 60:.1f}"
-        table.add_row(r["benchmark"], r["variant"], r["protocol"], built, minutes, r["artifact"])
+        seed = [str(r["grid_seed"])] if seeded else []
+        table.add_row(r["benchmark"], r["variant"], *seed, r["protocol"], built, minutes, r["artifact"])
     return table
 
 
