@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -55,6 +56,9 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "profile": ([], []),  # the profile as it is: the chosen recipe
     "profile_uni_map": ([], ["uni_map"]),
     "profile_rerun": ([], []),  # the profile again with today's code: the reference the later levers meet
+    # The shipped goal U-Nets: `fftool models install --benchmarks all --root <root>/shipped` first (the profile's
+    # fingerprints, so nothing trains); with --blank-maps, scored as `fftool predict` runs them.
+    "shipped": ([], []),
     # Capacity, against "profile": 1.5× the widths (2.25× the multiply-adds), and three supervised output maps.
     "wide_1.5": (["goal.widths=[12, 24, 24, 48]"], []),
     "supervised_3": (["goal.supervised_steps=3"], []),
@@ -74,6 +78,10 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "goalsar_widths_steps_4x": (["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64"], []),
     # No network: the constant-velocity reference (CV@K and CV@1 as sample-goals draws them) on the same windows.
     "constant_velocity": ([], []),
+    # Against the shipped recipe: the scene map withheld from a share of the training windows (they see the
+    # all-zero scene, as `fftool predict` and the API give the module), so it also serves data without a map.
+    "map_dropout_0.5": ([], ["map_dropout_0.5"]),
+    "map_dropout_1": ([], ["map_dropout_1"]),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -95,8 +103,25 @@ def _patch(name: str) -> None:
         heatmaps.cells_to_world.__code__ = _corner_cells_to_world.__code__
     elif name == "uni_map":
         scenes.SOURCE_SCENE["uni_examples"] = "univ"
+    elif name.startswith("map_dropout_"):
+        _drop_maps(float(name.removeprefix("map_dropout_")))
     else:
         raise SystemExit(f"unknown patch {name!r}")
+
+
+def _drop_maps(share: float) -> None:
+    """Training crops (the goal stage's steps, not its validation) of a `share` of windows, drawn per window
+    by a generator of their own (seed 0), read the all-zero scene of the maps' stack instead of their own."""
+    import fftool.stages.goal as goal_stage
+
+    original, gen = goal_stage.goal_inputs, torch.Generator().manual_seed(0)
+
+    def dropped(obs, scene, maps, cfg, angle, mirror, pred_len):  # type: ignore[no-untyped-def]
+        blank = (torch.rand(len(scene), generator=gen) < share).to(scene.device)
+        scene = torch.where(blank, torch.full_like(scene, len(maps.names)), scene)
+        return original(obs, scene, maps, cfg, angle, mirror, pred_len)
+
+    goal_stage.goal_inputs = dropped
 
 
 def _hold_out(place: str) -> None:
@@ -141,6 +166,7 @@ def measure(
     runtime: Runtime,
     holdout: bool = False,
     step_scale: float = 1.0,
+    blank_maps: bool = False,
 ) -> list[dict[str, object]]:
     overrides, patches = LEVERS[lever]
     for name in patches:
@@ -154,7 +180,7 @@ def measure(
         cfg = load_config(profile, extra)
         windows = pipeline.run(cfg, store, ["windows"], runtime=runtime)["windows"]
         return _constant_velocity_rows(windows, benchmark, cfg.goals, holdout, step_scale)
-    if rescore or step_scale != 1:  # the lever's models as trained, scored with other sampling or windows
+    if rescore or step_scale != 1 or blank_maps:  # the lever's models as trained, scored another way
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
     else:
@@ -169,6 +195,8 @@ def measure(
         cv_goals = int(values.pop("cv_goals", 0))  # type: ignore[call-overload]
         sampling = GoalsConfig.model_validate(sampling.model_dump() | values)
     scene_maps = load_goal_scenes(maps, windows, benchmark, goal_cfg).to(device)
+    if blank_maps:  # what `fftool predict` and the API give the module on a user's data: no scene map
+        scene_maps = dataclasses.replace(scene_maps, stack=torch.zeros_like(scene_maps.stack))
     val = load_agent_windows(windows, benchmark, "val")
     if step_scale != 1:
         val = _resampled(windows, val, step_scale)
@@ -178,7 +206,7 @@ def measure(
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
             {
-                "lever": _label(lever, rescore, step_scale),
+                "lever": _label(lever, [*rescore, *(["maps=blank"] if blank_maps else [])], step_scale),
                 "benchmark": benchmark,
                 "validation": _validation(benchmark, holdout, step_scale),
                 "mode_radius_cells": radius,
@@ -365,6 +393,9 @@ def main() -> None:
         default=1.0,
         help="score trained models on windows resampled at this step (5/3: eth's)",
     )
+    parser.add_argument(
+        "--blank-maps", action="store_true", help="score trained models with every map channel 0 (as on a user's data)"
+    )
     args = parser.parse_args()
     if args.step_scale != 1 and not args.holdout:
         parser.error("--step-scale resamples a held-out place's tracks: it needs --holdout")
@@ -381,6 +412,7 @@ def main() -> None:
             Runtime(args.device),
             args.holdout,
             args.step_scale,
+            args.blank_maps,
         )
         _append(args.out, rows)
         for row in rows:
