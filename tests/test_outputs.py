@@ -109,3 +109,30 @@ def test_an_animation_format_that_is_a_path_is_refused_before_any_work(tmp_path:
     )  # fmt: skip
     assert result.exit_code == 2 and "expected one of gif, mp4" in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_one_guard_refuses_what_fftool_did_not_write_for_every_kind(tmp_path: Path) -> None:
+    """Files and folders alike: a link, the wrong type, a path under a file and a foreign output are refused
+    before any work; fftool's own output, a new path and (for a folder) an empty one may be written."""
+    ours = outputs.marked_file("a test file", lambda path: path.read_text() == "ours")
+    folder = outputs.Kind("a test folder", True, lambda path: None if (path / "ours").exists() else "not ours")
+    (tmp_path / "ours.txt").write_text("ours")
+    (tmp_path / "mine.txt").write_text("mine")
+    (tmp_path / "link.txt").symlink_to(tmp_path / "ours.txt")
+    (tmp_path / "empty").mkdir()
+    for out, kind in [(tmp_path / "ours.txt", ours), (tmp_path / "new.txt", ours), (tmp_path / "empty", folder)]:
+        outputs.check_output(out, "--out", kind)
+    refused = [
+        (tmp_path / "mine.txt", ours, "exists and was not written by fftool"),
+        (tmp_path / "link.txt", ours, "a symbolic link"),
+        (tmp_path / "empty", ours, "a folder; give a file name"),
+        (tmp_path / "mine.txt", folder, "a file; give a folder"),
+        (tmp_path / "mine.txt" / "x.txt", ours, "mine.txt is a file, not a folder"),
+    ]
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.md").write_text("mine")
+    refused.append((tmp_path / "full", folder, "not ours"))
+    for out, kind, message in refused:
+        with pytest.raises(UsageError, match=message):
+            outputs.check_output(out, "--out", kind)
+    assert (tmp_path / "mine.txt").read_text() == "mine" and (tmp_path / "full" / "notes.md").read_text() == "mine"

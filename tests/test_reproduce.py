@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.learning.batches import load_agent_windows
+from fftool.reporting import ablation
 from fftool.reporting.rescoring import rescore
 from tests.test_maps import make_scene
 
@@ -71,6 +72,11 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert "run summary" in first.output and "tracks, windows" in first.output
     report = root / "reports" / "tiny"
     assert (report / "report.md").is_file() and "Table IV" in (report / "report.md").read_text()
+    listed = CliRunner().invoke(app, ["artifacts", "list", "--kind", "report", "--root", str(root)])
+    assert listed.exit_code == 0 and "tiny" in listed.output and "3 evaluations" in listed.output
+    [stored] = ArtifactStore(root).list("report")  # the published folder is the stored report and its marker
+    assert sorted(p.name for p in report.iterdir()) == sorted([*stored.manifest.files, ablation.REPORT_MARKER])
+    assert stored.id in (report / ablation.REPORT_MARKER).read_text()
     for stem in ("table2_ade_fde", "table3_fde", "table4_collisions", "table5_collision_metrics", "table6_paired"):
         assert {p.suffix for p in report.glob(f"{stem}.*")} == {".md", ".csv", ".tex"}
 

@@ -131,9 +131,11 @@ class Artifact:
 
     @property
     def label(self) -> str:
-        """What the artifact is about, for listings: its benchmark, variant and protocol where it has them."""
+        """What the artifact is about, for listings: its benchmark, variant and protocol (a report: its profile)
+        where it has them."""
         manifest = self.manifest
-        parts = [manifest.stats.get(key) or manifest.params.get(key) for key in ("benchmark", "variant", "protocol")]
+        keys = ("benchmark", "variant", "protocol", "profile")
+        parts = [manifest.stats.get(key) or manifest.params.get(key) for key in keys]
         return " · ".join(str(part) for part in parts if part and part != "none")
 
     def file(self, name: str) -> Path:

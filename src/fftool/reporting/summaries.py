@@ -54,9 +54,9 @@ def artifacts_table(artifacts: list[Artifact]) -> Table:
     for artifact in artifacts:
         manifest = artifact.manifest
         size = sum(f["bytes"] for f in manifest.files.values())
-        inputs = (
-            ", ".join(f"{name}/{fp[:8]}" for name, fp in manifest.built_from().items())
-            or f"{sum(1 for name in manifest.inputs if name.startswith('raw/'))} raw files"
+        raw = sum(1 for name in manifest.inputs if name.startswith("raw/"))
+        inputs = ", ".join(f"{name}/{fp[:8]}" for name, fp in manifest.built_from().items()) or (
+            f"{raw} raw files" if raw or not manifest.inputs else f"{len(manifest.inputs)} evaluations"  # a report
         )
         table.add_row(
             artifact.id,
