@@ -12,6 +12,9 @@ goal U-Net trains on B's train part without the windows of the place HOLDOUT[B] 
 its best epoch on that place's windows (B's train and val parts), and is scored on all of them. That is the
 leave-one-out situation the test meets (a scene the module never saw), measured without a test window.
 
+With `--blank-maps`, a lever's trained models are scored with every map channel zero, as `fftool predict` and the
+API run them on a user's tracks (lever "shipped": the shipped goal U-Nets, installed into its store first).
+
 One lever per process. "before" puts the crop centre back on a cell corner (patch `corner`) and the mode
 back on the argmax cell; "centre" only the second; the other levers change one thing from "before".
 "profile" is the profile file as it is (the shipped recipe), "profile_uni_map" the same with univ's map for

@@ -173,6 +173,14 @@ def levers_table(levers_csv: Path | str, radius: int, names: dict[str, str]) -> 
     return _markdown(["lever (validation goal-FDE@20 / FDE@1, m)", *BENCHMARKS, "average"], rows)
 
 
+def lever_average(levers_csv: Path | str, lever: str, radius: int = 2) -> float:
+    """A lever's five-benchmark average validation goal-FDE@20 (m), for prose that quotes it."""
+    frame = pd.read_csv(levers_csv)
+    rows = frame[(frame["lever"] == lever) & (frame["mode_radius_cells"] == radius)]
+    rows = rows.drop_duplicates("benchmark", keep="last").set_index("benchmark")
+    return float(rows.loc[list(BENCHMARKS), "val_goal_fde@20_m"].mean())
+
+
 def targets_table(goal_fde_csv: Path | str, fair_results_csv: Path | str) -> str:
     """The goal-module and fair-protocol targets fftool works toward, each with the measured test number and
     whether it is met (point estimates; the reports' claims table settles differences with intervals)."""
