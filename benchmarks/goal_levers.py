@@ -84,6 +84,7 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     # Against the shipped recipe: the scene map withheld from a share of the training windows (they see the
     # all-zero scene, as `fftool predict` and the API give the module), so it also serves data without a map.
     "map_dropout_0.5": ([], ["map_dropout_0.5"]),
+    "map_dropout_0.25": ([], ["map_dropout_0.25"]),
     "map_dropout_1": ([], ["map_dropout_1"]),
 }
 MODE_RADII = (0, 1, 2)
