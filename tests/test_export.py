@@ -4,6 +4,7 @@ for any number of agents, run by onnxruntime alone; its folder is fftool's own."
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from typer.testing import CliRunner
 
 from fftool import pipeline
 from fftool.api import load, load_goal_sampler
-from fftool.artifacts.store import ArtifactStore
+from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.cli import app
 from fftool.config import predictor_config
 from fftool.errors import UsageError
@@ -23,21 +24,42 @@ from fftool.learning.observed import desired_speed_and_groups
 from fftool.online import OnlinePredictor
 from fftool.outputs import check_output
 
+from .conftest import make_raw_tree
 from .test_dlow import _cfg
 
 
-@pytest.mark.slow
-def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(raw_tree: Path, tmp_path: Path) -> None:
-    store = ArtifactStore(tmp_path / "artifacts")
-    built = pipeline.run(predictor_config(_cfg(raw_tree), "dr"), store, ["dlow"], benchmark="zara1")
-    cvae, dlow = built["cvae"], built["dlow"]
-    out = tmp_path / "exported"
-    args = ["export", cvae.id, "--dlow", dlow.id, "--root", str(store.root), "--out", str(out)]
+@dataclass(frozen=True)
+class Export:
+    store: ArtifactStore
+    cvae: Artifact
+    dlow: Artifact
+    goal: Artifact
+    out: Path
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> Export:
+    """A dr model, its DLow sampler and a goal U-Net trained on the tiny data and exported together, once: the
+    export unrolls the decoder's 12 steps, the slow part of these tests."""
+    base = tmp_path_factory.mktemp("export")
+    store = ArtifactStore(base / "artifacts")
+    cfg = predictor_config(_cfg(make_raw_tree(base / "raw")), "dr")
+    built = pipeline.run(cfg, store, ["dlow", "goal"], benchmark="zara1")
+    cvae, dlow, goal = built["cvae"], built["dlow"], built["goal"]
+    out = base / "exported"
+    args = ["export", cvae.id, "--dlow", dlow.id, "--goal-model", goal.id, "--root", str(store.root), "--out", str(out)]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
+    return Export(store, cvae, dlow, goal, out)
+
+
+@pytest.mark.slow
+def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(exported: Export) -> None:
+    store, cvae, dlow, out = exported.store, exported.cvae, exported.dlow, exported.out
     manifest = json.loads((out / "manifest.json").read_text())
     assert list(manifest["inputs"]) == ["past", "agent_mask", "goals", "speed0"] and manifest["k"] == 3
-    assert manifest["source"] == {"model": cvae.id, "cvae": cvae.fingerprint, "dlow": dlow.fingerprint}
+    source = {"model": cvae.id, "cvae": cvae.fingerprint, "dlow": dlow.fingerprint, "goal_model": exported.goal.id}
+    assert manifest["source"] == source
     session = onnxruntime.InferenceSession(str(out / "model.onnx"), providers=["CPUExecutionProvider"])
     model = load(cvae.id, root=store.root, dlow=dlow.id)
     assert load(dlow.id, root=store.root).fingerprints == model.fingerprints  # a sampler brings its CVAE
@@ -72,17 +94,10 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(raw_tre
 
 
 @pytest.mark.slow
-def test_an_exported_goal_unet_draws_the_torch_goals(raw_tree: Path, tmp_path: Path) -> None:
+def test_an_exported_goal_unet_draws_the_torch_goals(exported: Export) -> None:
     """A goal variant exported with its goal U-Net: goal_unet.onnx gives the torch goal maps (within 1e-4 of a
     logit), and the online predictor on the export draws its own goals and gives the torch path's futures."""
-    store = ArtifactStore(tmp_path / "artifacts")
-    cfg = predictor_config(_cfg(raw_tree), "dr")
-    built = pipeline.run(cfg, store, ["dlow", "goal"], benchmark="zara1")
-    cvae, dlow, goal = built["cvae"], built["dlow"], built["goal"]
-    out = tmp_path / "exported"
-    args = ["export", cvae.id, "--dlow", dlow.id, "--goal-model", goal.id, "--root", str(store.root), "--out", str(out)]
-    result = CliRunner().invoke(app, args)
-    assert result.exit_code == 0, result.output
+    store, cvae, dlow, goal, out = exported.store, exported.cvae, exported.dlow, exported.goal, exported.out
     assert sorted(p.name for p in out.iterdir()) == ["goal_unet.onnx", "manifest.json", "model.onnx"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["goal_unet"]["crop_cells"] == goal.manifest.params["crop_cells"]
