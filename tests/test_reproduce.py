@@ -139,6 +139,12 @@ def test_reproduce_builds_everything_then_reuses_it(raw_tree: Path, tmp_path: Pa
     assert "0 of 11 stage builds to run" in again.output and "building" not in again.output
     assert again.output.count("evaluate' is cached") == 3 and "report report/" in again.output
     assert (report / "report.md").read_text() == first_report  # the stored report, with its own wall time
+    stored_md = stored.path / "report.md"
+    stored_md.write_text(first_report + "edited")
+    damaged = CliRunner().invoke(app, args)
+    assert damaged.exit_code == 1 and "changed since it was built" in damaged.output
+    assert (report / "report.md").read_text() == first_report  # nothing published from it
+    stored_md.write_text(first_report)
     assert "run summary" in again.output and again.output.count("nothing (all reused)") == 3
     paper = CliRunner().invoke(app, ["ablate", "--protocol", "paper", *common, "--out", str(tmp_path / "paper")])
     assert paper.exit_code == 0, paper.output

@@ -27,7 +27,7 @@ from fftool import __version__, pipeline, scheduler
 from fftool.artifacts.hashing import fingerprint
 from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import SEEDED_SECTIONS, PipelineConfig, predictor_config, seeded_config
-from fftool.errors import UsageError
+from fftool.errors import IntegrityError, UsageError
 from fftool.outputs import Kind, check_output, replacing_folder
 from fftool.reporting import claims, score_plots, scores, tables
 from fftool.stages.evaluate import METRIC_DEFINITIONS, codes_of
@@ -130,7 +130,7 @@ def reproduce(
     started = time.perf_counter()
     results = run(cfg, store, runtime, benchmarks, variants, workers)
     report = build_report(cfg, store, results, profile, command, started)
-    publish(report, out_dir, f"--out {out_dir}")
+    publish(report, out_dir, "--out")
     return out_dir / "report.md", results, (time.perf_counter() - started) / 60
 
 
@@ -252,6 +252,12 @@ def build_report(
     fp = fingerprint(REPORT_KIND, REPORT_VERSION, params, inputs)
     found = store.lookup(REPORT_KIND, fp)
     if found is not None:
+        problems = store.verify(found)
+        if problems:  # never published as if it were the report these evaluations make
+            raise IntegrityError(
+                f"report {found.id} ({found.path}) changed since it was built: {problems[0]}; nothing was "
+                "published. Remove that folder (fftool's own; the next run rebuilds it) and run again"
+            )
         log(f"report {found.id} is cached - publishing it")
         return found
     with store.build(REPORT_KIND, fp, schema_version=REPORT_VERSION, params=params, inputs=inputs) as ctx:
