@@ -251,8 +251,8 @@ def build_grid(
     inline = jobs == 1 and not address
     per_job = threads if inline else threads_per_job(jobs, threads)
     where = f"the Dask cluster at {address}" if address else f"{jobs} local worker processes"
-    todo = sum(store.lookup(*key) is None for key in nodes)
     firsts = _first_needs(grid, store)
+    todo = sum(map(len, firsts))  # every missing build is some cell's first need
     for name, keys, first in zip(names, grid.cells, firsts):
         built, found = [k[0] for k in keys if k in first], [k[0] for k in keys if k not in first]
         log(f"{name}: build {', '.join(built) or 'nothing'}; found {', '.join(found) or 'nothing'}")
