@@ -221,6 +221,36 @@ def test_time_reversal_makes_the_first_observed_position_the_goal(
     assert seen.shape[0] > 0 and distance.max() < 1e-4
 
 
+def test_map_dropout_gives_a_share_of_training_crops_the_zero_scene(
+    raw_tree: Path, built_store: ArtifactStore, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The map-less crops predict and the API give the module, seen in training: about `map_dropout` of the
+    crops that have a map lose it; without dropout, only the windows of a source without a map read none."""
+    for scene in ("zara1", "zara2"):  # zara2 is one of zara1's training scenes
+        make_scene(tmp_path / "scenes" / scene)
+    cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}", f"data.scenes_dir={str(tmp_path / 'scenes')!r}"])
+    inputs = pipeline.run(cfg, built_store, ["windows", "maps"])
+    scenes: list[torch.Tensor] = []
+    original = goal.goal_inputs
+
+    def spy(obs: torch.Tensor, scene: torch.Tensor, maps: SceneMaps, *args: object):  # type: ignore[no-untyped-def]
+        scenes.append(scene.clone())
+        return original(obs, scene, maps, *args)
+
+    monkeypatch.setattr(goal, "goal_inputs", spy)
+    trainer = goal._trainer(TINY, SAMPLING, "zara1", inputs["windows"], inputs["maps"], torch.device("cpu"))
+    zero = len(trainer.maps.names)
+    share: dict[float, float] = {}
+    for dropout in (0.0, 0.5):
+        scenes.clear()
+        (tmp_path / "scratch" / "last.pt").unlink(missing_ok=True)  # a fresh start, not the last run's end
+        _train(inputs, tmp_path, f"dropout{dropout}", TINY.model_copy(update={"epochs": 2, "map_dropout": dropout}))
+        share[dropout] = (torch.cat(scenes) == zero).float().mean().item()
+    without_map = (trainer.train_scene == zero).float().mean().item()
+    assert share[0.0] == pytest.approx(without_map, abs=0.1) and share[0.0] < 0.8
+    assert share[0.5] == pytest.approx(share[0.0] + (1 - share[0.0]) * 0.5, abs=0.08)
+
+
 def test_channels_last_weights_compute_what_the_default_layout_computes() -> None:
     """Training runs the U-Net channels-last for speed; the function, and a reload into the default layout,
     stay the same."""

@@ -107,18 +107,25 @@ class _Trainer:
                 angle = torch.rand(len(index), generator=gen, dtype=torch.float32) * 2 * torch.pi
                 mirror = torch.rand(len(index), generator=gen, dtype=torch.float32) < 0.5
                 reverse = torch.rand(len(index), generator=gen, dtype=torch.float32) < cfg.time_reversal
+                # Drawn only when asked for, so a recipe without map dropout keeps its augmentations' draws.
+                blank = torch.zeros(len(index), dtype=torch.bool)
+                if cfg.map_dropout:
+                    blank = torch.rand(len(index), generator=gen, dtype=torch.float32) < cfg.map_dropout
                 share = 1.0  # this rank's factor on its mean loss
                 if distributed.active():
                     mine, share = distributed.shard(index.numpy())
                     keep = torch.as_tensor(mine)
-                    index, angle, mirror, reverse = index[keep], angle[keep], mirror[keep], reverse[keep]
+                    index, angle, mirror, reverse, blank = (
+                        index[keep], angle[keep], mirror[keep], reverse[keep], blank[keep]
+                    )  # fmt: skip
                 xy = self.train_xy[index]
                 xy = torch.where(reverse[:, None, None], xy.flip(1), xy).to(device)
                 if not cfg.augment or cfg.align_heading:
                     angle = torch.zeros_like(angle)
                 if not cfg.augment:
                     mirror = torch.zeros_like(mirror)
-                past, scene = xy[:, : self.obs_len], self.train_scene[index].to(device)
+                scene = torch.where(blank, len(self.maps.names), self.train_scene[index]).to(device)
+                past = xy[:, : self.obs_len]
                 x, center, R = goal_inputs(
                     past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len
                 )  # fmt: skip
