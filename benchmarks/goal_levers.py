@@ -62,6 +62,8 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     # The shipped goal U-Nets: `fftool models install --benchmarks all --root <root>/shipped` first (the profile's
     # fingerprints, so nothing trains); with --blank-maps, scored as `fftool predict` runs them.
     "shipped": ([], []),
+    # The recipe shipped before map dropout (48 epochs, every crop with its map).
+    "before_map_dropout": (["goal.map_dropout=0"], []),
     # Capacity, against "profile": 1.5× the widths (2.25× the multiply-adds), and three supervised output maps.
     "wide_1.5": (["goal.widths=[12, 24, 24, 48]"], []),
     "supervised_3": (["goal.supervised_steps=3"], []),
@@ -81,11 +83,11 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "goalsar_widths_steps_4x": (["goal.widths=[32, 32, 64, 64, 64]", "goal.epochs=64"], []),
     # No network: the constant-velocity reference (CV@K and CV@1 as sample-goals draws them) on the same windows.
     "constant_velocity": ([], []),
-    # Against the shipped recipe: the scene map withheld from a share of the training windows (they see the
+    # Against "before_map_dropout": the scene map withheld from a share of the training windows (they see the
     # all-zero scene, as `fftool predict` and the API give the module), so it also serves data without a map.
-    "map_dropout_0.5": ([], ["map_dropout_0.5"]),
-    "map_dropout_0.25": ([], ["map_dropout_0.25"]),
-    "map_dropout_1": ([], ["map_dropout_1"]),
+    "map_dropout_0.5": (["goal.map_dropout=0.5"], []),
+    "map_dropout_0.25": (["goal.map_dropout=0.25"], []),
+    "map_dropout_1": (["goal.map_dropout=1"], []),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -107,25 +109,8 @@ def _patch(name: str) -> None:
         heatmaps.cells_to_world.__code__ = _corner_cells_to_world.__code__
     elif name == "uni_map":
         scenes.SOURCE_SCENE["uni_examples"] = "univ"
-    elif name.startswith("map_dropout_"):
-        _drop_maps(float(name.removeprefix("map_dropout_")))
     else:
         raise SystemExit(f"unknown patch {name!r}")
-
-
-def _drop_maps(share: float) -> None:
-    """Training crops (the goal stage's steps, not its validation) of a `share` of windows, drawn per window
-    by a generator of their own (seed 0), read the all-zero scene of the maps' stack instead of their own."""
-    import fftool.stages.goal as goal_stage
-
-    original, gen = goal_stage.goal_inputs, torch.Generator().manual_seed(0)
-
-    def dropped(obs, scene, maps, cfg, angle, mirror, pred_len):  # type: ignore[no-untyped-def]
-        blank = (torch.rand(len(scene), generator=gen) < share).to(scene.device)
-        scene = torch.where(blank, torch.full_like(scene, len(maps.names)), scene)
-        return original(obs, scene, maps, cfg, angle, mirror, pred_len)
-
-    goal_stage.goal_inputs = dropped
 
 
 def _hold_out(place: str) -> None:

@@ -199,7 +199,7 @@ class GoalConfig(_Section):
     time_reversal: float = Field(0.0, ge=0, le=1)
     # Share of training windows whose crop reads no scene map (all map channels zero), so the module also
     # learns the map-less inputs `fftool predict` and the API give it (not in Goal-SAR; docs/goal.md).
-    map_dropout: float = Field(0.0, ge=0, lt=1)
+    map_dropout: float = Field(0.0, ge=0, le=1)
     val_max: int = Field(1000, ge=0)  # validation agent-windows per epoch (0 = all)
     seed: int = 0
 
