@@ -1,8 +1,9 @@
 """Data-parallel training (torchrun, docs/scaling.md): 2 gloo ranks on the CPU, on tiny synthetic data.
 
-Ranks are forked processes with torchrun's environment (WORLD_SIZE, RANK, LOCAL_RANK, MASTER_ADDR/PORT):
-forked, they inherit the imported torch and fftool (spawned ranks re-import them, ~10 s each here); the
-parent never joins a process group.
+Ranks are processes with torchrun's environment (WORLD_SIZE, RANK, LOCAL_RANK, MASTER_ADDR/PORT), forked
+from a fork server that imported torch and fftool once: a fork of the test process itself would inherit the
+threads of pytest-xdist's worker (a rank could hang on a lock one of them held), and spawned ranks re-import
+everything (~10 s each here). The parent never joins a process group.
 What "the same step" means: the global batch is the single-process batch. For the goal U-Net (order and
 augmentation drawn for the global batch) the 2-rank step is compared with today's single-process step.
 For the CVAE each rank draws its windows' rotations and latent samples from its own generator (seed +
@@ -12,6 +13,7 @@ each window's noise drawn from its rank's generator, one backward, one optimizer
 
 from __future__ import annotations
 
+import faulthandler
 import multiprocessing
 import os
 import shutil
@@ -34,7 +36,7 @@ from fftool.stages import cvae, goal
 from .conftest import make_raw_tree
 from .test_maps import make_scene
 
-pytestmark = pytest.mark.slow  # forked torchrun ranks
+pytestmark = pytest.mark.slow  # torchrun ranks in their own processes
 
 WORLD = 2
 CPU = torch.device("cpu")
@@ -81,13 +83,15 @@ def _as_rank(rank: int, port: int) -> None:
 
 
 def _spawn(target: Any, *args: Any, timeout: float = 120, grace: float | None = None) -> list[int | None]:
-    """Run `target(rank, port, *args)` in WORLD spawned processes; their exit codes. With `grace`, the other
-    ranks get that long once rank 0 has ended, then they are killed (a killed rank 0 leaves them waiting)."""
-    context = multiprocessing.get_context("fork")
+    """Run `target(rank, port, *args)` in WORLD processes; their exit codes. With `grace`, the other ranks get
+    that long once rank 0 has ended, then they are killed (a killed rank 0 leaves them waiting). A rank still
+    running 10 s before its deadline prints its threads' stacks."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["torch", "fftool.pipeline", __name__])
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    procs = [context.Process(target=target, args=(rank, port, *args)) for rank in range(WORLD)]
+    procs = [context.Process(target=_rank, args=(timeout, target, rank, port, *args)) for rank in range(WORLD)]
     for proc in procs:
         proc.start()
     try:
@@ -100,6 +104,11 @@ def _spawn(target: Any, *args: Any, timeout: float = 120, grace: float | None = 
                 proc.kill()
                 proc.join()
     return [proc.exitcode for proc in procs]
+
+
+def _rank(timeout: float, target: Any, *args: Any) -> None:
+    faulthandler.dump_traceback_later(max(timeout - 10, 1), exit=False)
+    target(*args)
 
 
 def _first_steps(rank: int, port: int, store_root: Path, out: Path) -> None:
