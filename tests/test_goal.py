@@ -31,12 +31,18 @@ TINY = GoalConfig(
 SAMPLING = GoalsConfig(k=5, samples=200, kmeans_iterations=5)
 
 
+def _inputs(raw_tree: Path, store: ArtifactStore, tmp_path: Path, scenes: tuple[str, ...] = ("zara1",)) -> dict:
+    """The tiny benchmark's windows, and maps of `scenes` (zara1, its test scene, by default)."""
+    for scene in scenes:
+        make_scene(tmp_path / "scenes" / scene)
+    cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}", f"data.scenes_dir={str(tmp_path / 'scenes')!r}"])
+    built = pipeline.run(cfg, store, ["windows", "maps"])
+    return {"windows": built["windows"], "maps": built["maps"]}
+
+
 @pytest.fixture
 def inputs(raw_tree: Path, built_store: ArtifactStore, tmp_path: Path) -> dict:
-    make_scene(tmp_path / "scenes" / "zara1")
-    cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}", f"data.scenes_dir={str(tmp_path / 'scenes')!r}"])
-    built = pipeline.run(cfg, built_store, ["windows", "maps"])
-    return {"windows": built["windows"], "maps": built["maps"]}
+    return _inputs(raw_tree, built_store, tmp_path)
 
 
 def _train(inputs: dict, tmp_path: Path, name: str, cfg: GoalConfig = TINY, on_progress=None) -> dict:
@@ -226,10 +232,7 @@ def test_map_dropout_gives_a_share_of_training_crops_the_zero_scene(
 ) -> None:
     """The map-less crops predict and the API give the module, seen in training: about `map_dropout` of the
     crops that have a map lose it; without dropout, only the windows of a source without a map read none."""
-    for scene in ("zara1", "zara2"):  # zara2 is one of zara1's training scenes
-        make_scene(tmp_path / "scenes" / scene)
-    cfg = load_config(None, [f"data.raw_dir={str(raw_tree)!r}", f"data.scenes_dir={str(tmp_path / 'scenes')!r}"])
-    inputs = pipeline.run(cfg, built_store, ["windows", "maps"])
+    inputs = _inputs(raw_tree, built_store, tmp_path, ("zara1", "zara2"))  # zara2: one of zara1's training scenes
     scenes: list[torch.Tensor] = []
     original = goal.goal_inputs
 
