@@ -34,8 +34,10 @@ def _predictor_rows(results_csvs: Sequence[Path | str]) -> tuple[list[str], Iter
     """The benchmarks the results cover, and (row name, its rows indexed by benchmark) per predictor and goal
     protocol, in the files' order and the paper's predictor order, each (predictor, protocol) once."""
     frames = [pd.read_csv(path) for path in results_csvs]
-    frames = [frame[frame["benchmark"].isin(BENCHMARKS)] for frame in frames]
     benchmarks = [b for b in BENCHMARKS if any((frame["benchmark"] == b).any() for frame in frames)]
+    if not benchmarks:  # a dataset of the user's own: its benchmarks as the files name them
+        benchmarks = list(dict.fromkeys(b for frame in frames for b in frame["benchmark"]))
+    frames = [frame[frame["benchmark"].isin(benchmarks)] for frame in frames]
 
     def rows() -> Iterator[tuple[str, pd.DataFrame]]:
         seen = set()
@@ -76,6 +78,22 @@ def protocol_table(*results_csvs: Path | str, published: bool = True) -> str:
             label = name.replace(", published, not re-run", ", published")
             rows.append([label, *(_pair(*pairs[c], digits=2) for c in columns)])
     return _markdown(["method", *columns], rows)
+
+
+def benchmark_table(results_csv: Path | str) -> str:
+    """One benchmark's minADE / minFDE and NC with their bootstrap intervals, one row per predictor and goal
+    protocol, from a `fftool reproduce` results.csv of that benchmark alone."""
+    benchmarks, predictors = _predictor_rows([results_csv])
+    (benchmark,) = benchmarks
+
+    def interval(row: pd.Series, column: str, digits: int) -> str:
+        return f"{row[column]:.{digits}f} [{row[column + ' low']:.{digits}f}, {row[column + ' high']:.{digits}f}]"
+
+    rows = []
+    for name, part in predictors:
+        row = part.loc[benchmark]
+        rows.append([name, f"{interval(row, 'min_ade', 3)} / {interval(row, 'min_fde', 3)}", interval(row, "nc", 0)])
+    return _markdown(["method", "minADE / minFDE (m)", "NC"], rows)
 
 
 def collisions_table(*results_csvs: Path | str) -> str:
