@@ -1,5 +1,6 @@
-"""`fftool export`: the ONNX graph of a CVAE and its DLow sampler gives the torch path's futures (within 1e-4 m)
-for any number of agents, run by onnxruntime alone; its folder is fftool's own."""
+"""`fftool export`: the ONNX graph of a CVAE with its DLow sampler, or drawing from its prior with the draws as an
+input, gives the torch path's futures (within 1e-4 m) for any number of agents, run by onnxruntime alone; its
+folder is fftool's own."""
 
 from __future__ import annotations
 
@@ -19,8 +20,9 @@ from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.cli import app
 from fftool.config import predictor_config
 from fftool.errors import UsageError
-from fftool.export import EXPORT
+from fftool.export import EXPORT, PRIOR_DRAWS
 from fftool.learning.observed import desired_speed_and_groups
+from fftool.learning.training import generator
 from fftool.online import OnlinePredictor
 from fftool.outputs import check_output
 
@@ -35,6 +37,7 @@ class Export:
     dlow: Artifact
     goal: Artifact
     out: Path
+    prior: Path  # the same CVAE without its sampler: drawing from its prior
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +53,10 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Export:
     args = ["export", cvae.id, "--dlow", dlow.id, "--goal-model", goal.id, "--root", str(store.root), "--out", str(out)]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
-    return Export(store, cvae, dlow, goal, out)
+    prior = base / "exported_prior"
+    result = CliRunner().invoke(app, ["export", cvae.id, "--root", str(store.root), "--out", str(prior)])
+    assert result.exit_code == 0, result.output
+    return Export(store, cvae, dlow, goal, out, prior)
 
 
 @pytest.mark.slow
@@ -90,6 +96,44 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(exporte
         assert list(graph.agents) == list(torch_path.agents) == ([7, 8, 9] if step >= 7 else [])
         np.testing.assert_allclose(graph.goals, torch_path.goals)
         assert graph.futures.shape == torch_path.futures.shape
+        assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
+
+
+@pytest.mark.slow
+def test_a_model_drawing_from_its_prior_takes_its_draws_as_an_input(exported: Export) -> None:
+    """Without a DLow sampler dr draws its codes from its prior: the graph takes the standard normal draws as
+    `noise`; given the draws the torch path makes with a seed, it gives the torch path's futures, and so does the
+    online predictor on the export."""
+    store, cvae = exported.store, exported.cvae
+    model = load(cvae.id, root=store.root)
+    assert model.sampler is None and not model.mean_codes("fair")
+    manifest = json.loads((exported.prior / "manifest.json").read_text())
+    assert list(manifest["inputs"]) == ["past", "agent_mask", "goals", "speed0", "noise"]
+    z_dim = model.trained.config.z_dim
+    assert (manifest["codes"], manifest["z_dim"], manifest["k"]) == (PRIOR_DRAWS, z_dim, 3)
+    session = onnxruntime.InferenceSession(str(exported.prior / "model.onnx"), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(3)
+    for agents in (1, 2, 6):
+        past = np.cumsum(rng.normal(0.3, 0.1, (1, agents, 8, 2)), 2) + rng.normal(0, 3, (1, agents, 1, 2))
+        mask = np.ones((1, agents), bool)
+        goals = past[:, :, -1:] + rng.normal(3, 1, (1, agents, 3, 2))
+        expected = model.predict(past, mask, k=3, goals=goals, seed=5)
+        speed0, _ = desired_speed_and_groups(past, mask, model.trained.forces_config, model.trained.dt_s)
+        inputs = {"past": past.astype(np.float32), "agent_mask": mask, "speed0": speed0.astype(np.float32)}
+        inputs["goals"] = goals.transpose(0, 2, 1, 3).astype(np.float32)
+        noise = torch.randn((3, agents, z_dim), generator=generator(5, torch.device("cpu"))).numpy()[None]
+        (got,) = session.run(None, inputs | {"noise": noise})
+        assert got.shape == expected.shape and np.abs(got - expected).max() < 1e-4
+        (other,) = session.run(None, inputs | {"noise": -noise})  # other draws, other futures
+        assert np.abs(other - got).max() > 1e-3
+
+    by_graph, by_torch = OnlinePredictor(exported.prior, k=3, seed=5), OnlinePredictor(model, k=3, seed=5)
+    for step in range(9):
+        detections = {agent: (0.5 * step * (agent - 6), 0.3 * agent - 0.1 * step) for agent in (7, 8, 9)}
+        goals = {agent: (8.0 + agent, -2.0) for agent in detections}
+        graph = by_graph.update(0.4 * step, detections, goals)
+        torch_path = by_torch.update(0.4 * step, detections, goals)
+        assert list(graph.agents) == list(torch_path.agents) == ([7, 8, 9] if step >= 7 else [])
         assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
 
 
@@ -149,6 +193,7 @@ def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
         ({"forces": {"fov_deg": "wide"}}, "forces.fov_deg: "),
         ({"k": None} | {"drop": "k"}, r"missing \['k'\]"),
         ({"goal_unet": {"config": {"crop_cells": "wide"}}}, "goal_unet: expected its config and sampling"),
+        ({"codes": PRIOR_DRAWS}, "z_dim: expected the codes' size"),
     ],
 )
 def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict, message: str) -> None:

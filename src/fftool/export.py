@@ -1,23 +1,27 @@
 """A trained predictor as an ONNX graph, for a planner that cannot load a pickled torch module.
 
-`fftool export cpu/zara1/dr --out zara1_dr/` writes `model.onnx` (the CVAE with its DLow sampler: its K codes
-are fixed, so the graph is deterministic) and `manifest.json` (what the graph takes and gives, in which units,
-and the fingerprints it came from). The graph takes one scene (a window of A agents, any A) at a time, and
-what the torch path computes before the network:
+`fftool export cpu/zara1/dr --out zara1_dr/` writes `model.onnx` (the CVAE and how it gets its K codes) and
+`manifest.json` (what the graph takes and gives, in which units, and the fingerprints it came from). The graph
+takes one scene (a window of A agents, any A) at a time, and what the torch path computes before the network:
 
 - `past` (1, A, obs_len, 2) float32, world metres; `agent_mask` (1, A) bool (padded slots are ignored);
 - goal variants: `goals` (1, K, A, 2) float32, sample k steering toward goal k (one goal per agent: repeat it);
 - dr and re: `speed0` (1, A) float32, each agent's desired speed (m/s); re: `group` (1, A) int64, window-local
   group ids (-1 alone): `learning.observed.desired_speed_and_groups` computes both from `past` as the torch
-  path does (the observed mean speed; DBSCAN groups).
+  path does (the observed mean speed; DBSCAN groups);
+- a model that draws its codes from its prior (no DLow sampler, no mean codes): `noise` (1, K, A, Z) float32,
+  standard normal draws, code = prior mean + prior std · noise. The random draws stay on the host, so the graph
+  is deterministic: fftool draws them as the torch path does (`torch.randn` from the seeded generator), so its
+  futures equal the torch path's; any other N(0, 1) source gives other, equally valid samples.
+
+A model with a DLow sampler decodes the sampler's K codes, and a goal variant whose profile decodes each goal
+from the prior's mean (`evaluate.fair_code`) its prior's mean: their graphs take no noise.
 
 Output: `futures` (1, K, A, pred_len, 2) float32, world metres. A goal variant exported with its goal U-Net
 also gets `goal_unet.onnx`: `past` (A, obs_len, 2) float32 metres in, each agent's goal map out (`logits`
 (A, S, S) over its crop, the crop's `centre` (A, 2) and `rotation` (A, 2, 2)); the sampling from those maps
-(TTST's draws and k-means, `fftool.science.heatmaps.sample_goals`) stays on the host, as random draws have
-no graph that equals them; the manifest's `goal_unet` block has its settings and the cell-to-world formula.
-A model drawn from its prior (no DLow sampler) is refused: its draws are random, so no graph could equal it;
-a goal variant whose profile decodes each goal from the prior's mean (`evaluate.fair_code`) needs no sampler.
+(TTST's draws and k-means, `fftool.science.heatmaps.sample_goals`) stays on the host, for the same reason;
+the manifest's `goal_unet` block has its settings and the cell-to-world formula.
 """
 
 from __future__ import annotations
@@ -41,26 +45,37 @@ GOAL_ONNX_FILE = "goal_unet.onnx"
 MANIFEST_FILE = "manifest.json"
 OPSET = 18
 MAX_AGENTS = 4096  # agents in one scene the graph takes
+# How an exported graph gets its K codes (the manifest's "codes"); only prior draws take `noise`.
+DLOW_CODES, MEAN_CODES, PRIOR_DRAWS = "DLow sampler", "prior mean per goal", "prior draws: mean + std · noise"
 
 
-def input_names(variant: str) -> list[str]:
-    """The graph's inputs, in order, for a CVAE variant."""
+def input_names(variant: str, codes: str) -> list[str]:
+    """The graph's inputs, in order, for a CVAE variant whose codes come as `codes` says."""
     names = ["past", "agent_mask"]
     names += ["goals"] if reads_goal(variant) else []
     names += ["speed0"] if SPECS[variant].uses_forces else []
     names += ["group"] if variant == "re" else []
+    names += ["noise"] if codes == PRIOR_DRAWS else []
     return names
+
+
+def codes_of(model: Any) -> str:
+    """How `model` (an fftool.api.Model) gets its K codes in an exported graph."""
+    if model.sampler is not None:
+        return DLOW_CODES
+    return MEAN_CODES if model.mean_codes("fair") else PRIOR_DRAWS
 
 
 class _Graph(torch.nn.Module):
     """The torch path of `Model.predict` from its padded batch on, as one module of tensors in and out."""
 
-    def __init__(self, model: Any) -> None:  # an fftool.api.Model with a DLow sampler, or with mean codes
+    def __init__(self, model: Any) -> None:  # an fftool.api.Model
         super().__init__()
         self.net, self.sampler = model.trained.model, model.sampler
         k = model.trained.config.k if model.sampler is None else model.sampler.k
         self.predictor = model.predictor(k, 0, "fair" if reads_goal(model.variant) else "oracle")
         self.variant, self.pred_len, self.k = model.variant, model.pred_len, k
+        self.z_dim = model.trained.config.z_dim
 
     def forward(
         self,
@@ -69,6 +84,7 @@ class _Graph(torch.nn.Module):
         goals: torch.Tensor | None = None,
         speed0: torch.Tensor | None = None,
         group: torch.Tensor | None = None,
+        noise: torch.Tensor | None = None,
     ) -> torch.Tensor:
         B, A, T, _ = past.shape
         past = torch.where(agent_mask[:, :, None, None], past, torch.zeros_like(past))
@@ -78,7 +94,7 @@ class _Graph(torch.nn.Module):
         group = torch.full((B, A), -1, dtype=torch.long, device=past.device) if group is None else group
         batch = SceneBatch(xy, agent_mask, zeros, zeros, speed0, group, torch.zeros_like(group))
         goals = past[:, None, :, T - 1].expand(-1, self.k, -1, -1) if goals is None else goals
-        return self.predictor(batch, goals)
+        return self.predictor(batch, goals, None if noise is None else noise.reshape(B * self.k, A, self.z_dim))
 
 
 class _GoalGraph(torch.nn.Module):
@@ -92,7 +108,9 @@ class _GoalGraph(torch.nn.Module):
         return self.goal_sampler.maps(past, self.pred_len)
 
 
-def example_inputs(variant: str, k: int, obs_len: int, batch: int = 1, agents: int = 3) -> dict[str, np.ndarray]:
+def example_inputs(
+    variant: str, codes: str, k: int, obs_len: int, z_dim: int, batch: int = 1, agents: int = 3
+) -> dict[str, np.ndarray]:
     """Inputs of the graph's layout: one window (a scene: the graph takes one at a time) of `agents` agents (more
     than one: torch.export fixes a dimension of size 1)."""
     rng = np.random.default_rng(0)
@@ -102,7 +120,8 @@ def example_inputs(variant: str, k: int, obs_len: int, batch: int = 1, agents: i
     values["goals"] = np.repeat(past[:, None, :, -1] + 4.0, k, 1).astype(np.float32)
     values["speed0"] = np.full((batch, agents), 1.0, np.float32)
     values["group"] = np.full((batch, agents), -1, np.int64)
-    return {name: values[name] for name in input_names(variant)}
+    values["noise"] = rng.standard_normal((batch, k, agents, z_dim)).astype(np.float32)
+    return {name: values[name] for name in input_names(variant, codes)}
 
 
 def is_export(folder: Path) -> bool:
@@ -132,36 +151,31 @@ class Exported:
 
 
 def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = None) -> Exported:
-    """Write `model` (an fftool.api.Model with a DLow sampler, or a goal variant that decodes each goal from
-    its prior's mean) to `out` as model.onnx + manifest.json, and a goal variant's `goal_sampler` (an
-    fftool.api.GoalSampler) as goal_unet.onnx, built in a temporary folder beside it and moved into place
-    whole. source: where it came from (name, ids)."""
+    """Write `model` (an fftool.api.Model) to `out` as model.onnx + manifest.json, and a goal variant's
+    `goal_sampler` (an fftool.api.GoalSampler) as goal_unet.onnx, built in a temporary folder beside it and
+    moved into place whole. source: where it came from (name, ids)."""
     check_output(out, "--out", EXPORT)
     if goal_sampler is not None and not reads_goal(model.variant):
         raise UsageError(f"the {model.variant} variant reads no goal: it is exported without a goal U-Net")
-    if model.sampler is None and not model.mean_codes("fair"):
-        raise UsageError(
-            f"this {model.variant} model draws from its prior (no DLow sampler): random draws have no ONNX "
-            "equivalent that equals them; export a model with a sampler (fftool models list: .../dlow)"
-        )
-    graph = _Graph(model).eval()
-    example = example_inputs(model.variant, graph.k, model.obs_len)
+    graph, codes = _Graph(model).eval(), codes_of(model)
+    example = example_inputs(model.variant, codes, graph.k, model.obs_len, graph.z_dim)
     names = list(example)
     agents = torch.export.Dim("A", max=MAX_AGENTS)
     dims = {"past": {1: agents}, "agent_mask": {1: agents}, "goals": {2: agents}, "speed0": {1: agents}}
-    dims |= {"group": {1: agents}}
+    dims |= {"group": {1: agents}, "noise": {2: agents}}
     kwargs = {name: torch.as_tensor(example[name]) for name in names}
     manifest = {
         "fftool": __version__,
         "format": f"ONNX, opset {OPSET}",
         "variant": model.variant,
         "k": graph.k,
-        "codes": "prior mean per goal" if model.mean_codes("fair") else "DLow sampler",
+        "codes": codes,
+        "z_dim": graph.z_dim,
         "obs_len": model.obs_len,
         "pred_len": model.pred_len,
         "step_s": model.step_s,
         "forces": model.trained.forces_config.model_dump() if model.trained.forces_config else None,
-        "inputs": {name: _describe(name, model.obs_len, graph.k) for name in names},
+        "inputs": {name: _describe(name, model.obs_len, graph.k, graph.z_dim) for name in names},
         "outputs": {"futures": f"(1, {graph.k}, A, {model.pred_len}, 2) float32, world metres"},
         "source": source,
     }
@@ -191,7 +205,7 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
 
 def _export_goal_unet(goal_sampler: Any, obs_len: int, pred_len: int, path: Path) -> None:
     """goal_unet.onnx: observed paths (A, obs_len, 2) in, goal maps, crop centres and rotations out."""
-    past = torch.as_tensor(example_inputs("goal", 1, obs_len)["past"][0])  # (3, obs_len, 2)
+    past = torch.as_tensor(example_inputs("goal", MEAN_CODES, 1, obs_len, 0)["past"][0])  # (3, obs_len, 2)
     torch.onnx.export(
         _GoalGraph(goal_sampler, pred_len).eval(),
         (past,),
@@ -247,11 +261,13 @@ def _name_output_dims(path: Path, shapes: list[list[str | int]]) -> None:
     onnx.save(graph, str(path))
 
 
-def _describe(name: str, obs_len: int, k: int) -> str:
+def _describe(name: str, obs_len: int, k: int, z_dim: int) -> str:
     return {
         "past": f"(1, A, {obs_len}, 2) float32, world metres, the observed positions (oldest first)",
         "agent_mask": "(1, A) bool, real agents (padded slots are ignored)",
         "goals": f"(1, {k}, A, 2) float32, world metres, the goal of each sample",
         "speed0": "(1, A) float32, m/s, each agent's desired speed (fftool: learning.observed)",
         "group": "(1, A) int64, window-local group ids, -1 alone (fftool: learning.observed)",
+        "noise": f"(1, {k}, A, {z_dim}) float32, standard normal draws: sample k's code is the prior's mean + its "
+        "std · noise[:, k] (fftool: torch.randn from the seeded generator)",
     }[name]

@@ -19,6 +19,7 @@ from fftool.config import ForcesConfig, GoalConfig, GoalsConfig
 from fftool.errors import InputError, UsageError
 from fftool.export import GOAL_ONNX_FILE, MANIFEST_FILE, ONNX_FILE, input_names, is_export
 from fftool.learning.observed import desired_speed_and_groups
+from fftool.learning.training import generator
 from fftool.variants import SPECS
 
 
@@ -49,8 +50,9 @@ class ExportedModel:
     device = torch.device("cpu")  # where a goal sampler beside it runs
 
     @classmethod
-    def load(cls, folder: str | Path) -> ExportedModel:
-        """The export in `folder`, or an error naming what is missing (UsageError) or damaged (InputError)."""
+    def load(cls, folder: str | Path, threads: int | None = None) -> ExportedModel:
+        """The export in `folder`, or an error naming what is missing (UsageError) or damaged (InputError);
+        threads: onnxruntime's threads per graph (default: its own choice, one per core)."""
         folder = Path(folder)
         if not is_export(folder):
             raise UsageError(f"{folder}: not a folder `fftool export` wrote ({MANIFEST_FILE} of an ONNX export)")
@@ -63,7 +65,9 @@ class ExportedModel:
             raise InputError(f"{where}: missing {missing}")
         if manifest["variant"] not in SPECS:
             raise InputError(f"{where}: variant {manifest['variant']!r} is none of {sorted(SPECS)}")
-        expected = input_names(manifest["variant"])
+        expected = input_names(manifest["variant"], str(manifest.get("codes")))
+        if "noise" in expected and not isinstance(manifest.get("z_dim"), int):
+            raise InputError(f"{where}: z_dim: expected the codes' size (a whole number) for the noise input")
         if list(manifest["inputs"]) != expected:
             raise InputError(f"{where}: inputs {list(manifest['inputs'])}, expected {expected} for its variant")
         try:
@@ -78,8 +82,8 @@ class ExportedModel:
                 sampling = GoalsConfig.model_validate(manifest["goal_unet"]["sampling"])
             except (ValidationError, KeyError, TypeError) as exc:
                 raise InputError(f"{where}: goal_unet: expected its config and sampling ({exc})") from None
-            goal_sampler = ExportedGoalSampler(_session(folder / GOAL_ONNX_FILE), goal_cfg, sampling)
-        return cls(folder, manifest, _session(folder / ONNX_FILE), forces, goal_sampler)
+            goal_sampler = ExportedGoalSampler(_session(folder / GOAL_ONNX_FILE, threads), goal_cfg, sampling)
+        return cls(folder, manifest, _session(folder / ONNX_FILE, threads), forces, goal_sampler)
 
     @property
     def variant(self) -> str:
@@ -101,9 +105,10 @@ class ExportedModel:
     def step_s(self) -> float:
         return float(self.manifest["step_s"])
 
-    def futures(self, past: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
+    def futures(self, past: np.ndarray, goals: np.ndarray | None = None, seed: int = 0) -> np.ndarray:
         """(M, K, pred_len, 2) metres for the M agents of one scene observed at past (M, obs_len, 2) metres;
-        goals (M, K, 2) for goal variants, sample k steering toward goal k."""
+        goals (M, K, 2) for goal variants, sample k steering toward goal k. A model drawing from its prior gets
+        the standard normal draws the torch path makes with `seed`, so both give the same futures."""
         past = np.asarray(past, np.float32)[None]
         mask = np.ones(past.shape[:2], bool)
         groups = "group" in self.manifest["inputs"]  # as the torch path: DBSCAN only for a variant that reads groups
@@ -111,15 +116,23 @@ class ExportedModel:
         values = {"past": past, "agent_mask": mask, "speed0": speed0.astype(np.float32), "group": group}
         if goals is not None:
             values["goals"] = np.asarray(goals, np.float32).transpose(1, 0, 2)[None]
+        if "noise" in self.manifest["inputs"]:
+            shape = (self.k, past.shape[1], int(self.manifest["z_dim"]))  # the torch path's (K windows, A, Z)
+            values["noise"] = torch.randn(shape, generator=generator(seed, self.device)).numpy()[None]
         (futures,) = self.session.run(None, {name: values[name] for name in self.manifest["inputs"]})
         return futures[0].transpose(1, 0, 2, 3)
 
 
-def _session(path: Path) -> Any:
-    """An onnxruntime session of the graph at `path` (CPU), or an InputError naming it."""
+def _session(path: Path, threads: int | None) -> Any:
+    """An onnxruntime session of the graph at `path` (CPU), or an InputError naming it. Its log shows errors
+    only: loading a graph otherwise prints a line for each cast it cannot fold ahead of time."""
     import onnxruntime
 
+    options = onnxruntime.SessionOptions()
+    options.log_severity_level = 3
+    if threads is not None:
+        options.intra_op_num_threads = options.inter_op_num_threads = threads
     try:
-        return onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        return onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime's own errors: a missing or damaged graph
         raise InputError(f"{path}: not a graph onnxruntime can load ({exc})") from None

@@ -181,7 +181,8 @@ class OnlinePredictor:
             )  # fmt: skip
         else:
             chosen = np.repeat(past[:, None, -1], k, 1)
-        return Drawn(chosen, model.futures(past, chosen if reads_goal(model.variant) else None), np.zeros(0))
+        futures = model.futures(past, chosen if reads_goal(model.variant) else None, self.seed)
+        return Drawn(chosen, futures, np.zeros(0))
 
     def _checked(self, time_s: object, detections: object) -> tuple[np.ndarray, np.ndarray]:
         """(M,) agent ids and (M, 2) positions of an update, or an InputError before any state changes."""

@@ -12,7 +12,7 @@ from fftool.cli.app import RootOption, app, boundary
 
 @app.command(
     epilog="Examples:\n\n"
-    "  fftool export cpu/zara1/dr --out zara1_dr/        # a shipped model: its CVAE, DLow sampler and goal U-Net\n\n"
+    "  fftool export cpu/zara1/dr --out zara1_dr/        # a shipped model: its CVAE and goal U-Net\n\n"
     "  fftool export dlow/8e1b07 --out mine/                # a DLow sampler you trained, over its CVAE"
 )
 @boundary
@@ -38,9 +38,10 @@ def export(
     ] = None,
     root: RootOption = None,
 ) -> None:
-    """Export a CVAE and its DLow sampler to ONNX (deterministic K futures; goals, desired speeds and groups are
-    inputs computed by the host), a goal variant's goal U-Net beside it, with a manifest of their inputs, units
-    and where they came from."""
+    """Export a CVAE to ONNX with how it gets its K codes (a DLow sampler, the prior's mean, or prior draws whose
+    standard normal noise is an input), a goal variant's goal U-Net beside it, and a manifest of their inputs,
+    units and where they came from. The graph is deterministic: goals, desired speeds, groups and any random
+    draws are inputs computed by the host."""
     from fftool import zoo
     from fftool.api import load, load_goal_sampler
     from fftool.export import EXPORT, GOAL_ONNX_FILE, ONNX_FILE

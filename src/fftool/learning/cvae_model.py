@@ -61,13 +61,15 @@ def sample(
     sampler: QNet | None = None,
     pick: torch.Tensor | None = None,
     with_mean: bool = False,
+    noise: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """K futures per agent, (B, K, A, Tf, 2) in the normalised frame: drawn from the prior, or, given a DLow
     `sampler`, decoded from its K codes z = b (AgentFormer's test-time codes). `pick` (B,): each window
     decodes only one code (the fair protocol's windows, one per goal), so K is 1: the sampler's code `pick`
     (a prior draw without a sampler), or the prior's mean where `pick` is -1. with_mean: the prior's mean code
     decoded in the same rollout as one more sample, last (`most_likely`'s future at the cost of a few more
-    tokens instead of a second rollout); the draws are those without it."""
+    tokens instead of a second rollout); the draws are those without it. noise: the standard normal draws of the
+    prior's codes, (B · K, A, Z) window-major (under `pick`, one per window drawn), instead of generator_'s."""
     with autocast(cfg, prepared.past.device):
         tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
         prior = model.prior(agent_context)
@@ -76,7 +78,7 @@ def sample(
             mean_rows = pick < 0
             if sampler is None:
                 z = prior.mu.clone()
-                z[~mean_rows] = Gaussian(prior.mu[~mean_rows], prior.logvar[~mean_rows]).sample(generator_)
+                z[~mean_rows] = Gaussian(prior.mu[~mean_rows], prior.logvar[~mean_rows]).sample(generator_, noise)
             else:
                 codes = sampler(agent_context).b  # (B, A, K', Z)
                 picked = codes[torch.arange(B, device=codes.device), :, pick.clamp_min(0)]
@@ -84,7 +86,7 @@ def sample(
             z = z[:, None]  # (B, 1, A, Z)
         elif sampler is None:
             rep = lambda x: x.repeat_interleave(k, 0)  # noqa: E731
-            z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_).view(B, k, A, Z)
+            z = Gaussian(rep(prior.mu), rep(prior.logvar)).sample(generator_, noise).view(B, k, A, Z)
         else:
             codes = sampler(agent_context).b  # (B, A, K', Z)
             if codes.shape[2] != k:

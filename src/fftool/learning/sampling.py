@@ -70,16 +70,21 @@ class Predictor:
             sampled = torch.as_tensor(self.sampled_goals[safe], dtype=torch.float32, device=self.device)
         return protocol_goals(self.protocol, sampled, batch.xy[:, :, -1], k)
 
-    def __call__(self, batch: SceneBatch, goals: torch.Tensor) -> torch.Tensor:
-        return self.draw(batch, goals)[0]
+    def __call__(self, batch: SceneBatch, goals: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
+        return self.draw(batch, goals, noise=noise)[0]
 
     def draw(
-        self, batch: SceneBatch, goals: torch.Tensor, with_most_likely: bool = False
+        self,
+        batch: SceneBatch,
+        goals: torch.Tensor,
+        with_most_likely: bool = False,
+        noise: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The K futures (B, K, A, T, 2) toward goals (B, K, A, 2) and, with_most_likely, the most-likely future
         (B, A, T, 2) toward goal 1 (`most_likely`) from the same rollout: one more code per window, or under the
         fair protocol one more window (goal 1, the prior's mean code), instead of a second rollout. The K
-        futures are those drawn without it."""
+        futures are those drawn without it. noise: for a model drawing from its prior, the standard normal draws
+        of its codes (B · K, A, Z), window-major, instead of the generator's (`cvae_model.sample`)."""
         k, obs_len = self.cfg.k, self.obs_len
         if self.model is None:
             if with_most_likely:
@@ -112,7 +117,7 @@ class Predictor:
         else:
             futures = sample(
                 self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s, draws, self.gen, self.sampler, pick,
-                with_mean=bool(extra) and self.protocol != "fair",
+                with_mean=bool(extra) and self.protocol != "fair", noise=noise,
             )  # fmt: skip
         futures = prepared.to_world(futures).reshape(B, k + extra, A, self.pred_len, 2)
         if not with_most_likely:

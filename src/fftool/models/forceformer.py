@@ -309,8 +309,11 @@ class Gaussian(NamedTuple):
     mu: Tensor  # (B, A, Z)
     logvar: Tensor  # (B, A, Z)
 
-    def sample(self, generator: torch.Generator | None = None) -> Tensor:
-        noise = torch.randn(self.mu.shape, generator=generator, device=self.mu.device, dtype=self.mu.dtype)
+    def sample(self, generator: torch.Generator | None = None, noise: Tensor | None = None) -> Tensor:
+        """A draw mu + std · noise; noise: standard normal draws of mu's shape to use instead of the generator's
+        (an exported graph takes them as an input)."""
+        if noise is None:
+            noise = torch.randn(self.mu.shape, generator=generator, device=self.mu.device, dtype=self.mu.dtype)
         return self.mu + noise * torch.exp(0.5 * self.logvar)
 
 
