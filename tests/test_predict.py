@@ -123,7 +123,7 @@ def test_the_most_likely_future_is_the_prior_means_decoding(
     path = model.most_likely(past, mask)
     assert path.shape == (1, 2, 12, 2) and np.array_equal(path, model.most_likely(past, mask))
     assert not np.allclose(model.predict(past, mask, k=1)[:, 0], path, atol=1e-4)  # a draw is not the centre
-    monkeypatch.setattr(Gaussian, "sample", lambda self, generator=None: self.mu)
+    monkeypatch.setattr(Gaussian, "sample", lambda self, generator=None, noise=None: self.mu)
     assert np.allclose(model.predict(past, mask, k=1)[:, 0], path, atol=1e-5)
     out = tmp_path / "path.parquet"
     args = ["predict", str(tracks), "--model", model_id, "--root", str(root), "--most-likely", "--out", str(out)]

@@ -5,7 +5,8 @@
     result = online.update(time_s, {agent: (x, y)})   # result.futures: (M, K, 12, 2) for result.agents
 
 Each update draws through `fftool.api.draw_futures`, the path `predict_tracks` takes, so a stream gives the
-numbers `fftool predict --at` gives for the same detections and seed; an `fftool export` folder runs its ONNX
+numbers `fftool predict --at` gives for the same detections and seed (to float rounding: an update decodes its
+most-likely future in the same rollout); an `fftool export` folder runs its ONNX
 graph with onnxruntime instead (within 1e-4 m of the torch path).
 """
 
@@ -74,7 +75,8 @@ class OnlinePredictor:
 
     Each update predicts at its own time for every agent detected then with positions at all obs_len grid
     points of the model's step before it (interpolated from the detections, bridging gaps up to max_gap_s):
-    the numbers `predict_tracks(..., at=[time_s])` gives for the detections so far, with the same seed.
+    the numbers `predict_tracks(..., at=[time_s])` gives for the detections so far, with the same seed (within
+    1e-5 m: the most-likely future rides in the same rollout, a product one row larger).
     Memory is bounded (dataset/stream.py). An update is all or nothing: one refused (an InputError) or failing
     (a goal variant's goal missing) leaves the predictor as it was, so the corrected update is taken.
     Not for several threads at once: a second `update` while one runs is refused with a UsageError (give each
