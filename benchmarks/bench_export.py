@@ -1,6 +1,8 @@
 """Latency of one scene, K = 20, a shipped model: torch eager (`Model.predict`) against its ONNX export run by
 onnxruntime, one thread each, at 1, 10 and 50 agents (medians and maxima of 10 calls after 2 warm-ups), and the
 largest difference between the two (metres). Exports the model first (minutes) unless --onnx names an export.
+The graph decodes the most-likely future too (one more code in the same rollout), which `Model.predict` does not:
+the ratio is, if anything, against the graph (benchmarks/bench_online_shipped.py times the same work on both).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_export.py --model cpu/zara1/baseline
 """
@@ -48,7 +50,7 @@ def main() -> None:
             expected = model.predict(past, mask, k=model.sampler.k)
             eager.append(time.perf_counter() - began)
             began = time.perf_counter()
-            (got,) = session.run(None, {"past": past, "agent_mask": mask})
+            got, _ = session.run(None, {"past": past, "agent_mask": mask})
             graph.append(time.perf_counter() - began)
         e, g = np.array(eager[2:]) * 1e3, np.array(graph[2:]) * 1e3
         print(

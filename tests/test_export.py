@@ -78,9 +78,11 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(exporte
         expected = model.predict(past, mask, k=3, goals=goals)  # (B, K, A, 12, 2)
         speed0, _ = desired_speed_and_groups(past, mask, model.trained.forces_config, model.trained.dt_s)
         inputs = {"past": past.astype(np.float32), "agent_mask": mask, "speed0": speed0.astype(np.float32)}
-        (got,) = session.run(None, inputs | {"goals": goals.transpose(0, 2, 1, 3).astype(np.float32)})
+        got, likely = session.run(None, inputs | {"goals": goals.transpose(0, 2, 1, 3).astype(np.float32)})
         assert got.shape == expected.shape
         assert np.abs(got - expected)[:, :, mask[0]].max() < 1e-4
+        centre = model.most_likely(past, mask, goals=goals[:, :, 0])  # the prior's mean code toward goal 1
+        assert likely.shape == centre.shape and np.abs(likely - centre)[:, mask[0]].max() < 1e-4
 
     # The online predictor on the export (onnxruntime) gives the torch one's futures, update by update.
     with pytest.raises(UsageError, match="exported with K = 3"):
@@ -96,7 +98,9 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(exporte
         assert list(graph.agents) == list(torch_path.agents) == ([7, 8, 9] if step >= 7 else [])
         np.testing.assert_allclose(graph.goals, torch_path.goals)
         assert graph.futures.shape == torch_path.futures.shape
+        assert graph.most_likely.shape == torch_path.most_likely.shape
         assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
+        assert np.abs(graph.most_likely - torch_path.most_likely).max(initial=0.0) < 1e-4
 
 
 @pytest.mark.slow
@@ -122,10 +126,11 @@ def test_a_model_drawing_from_its_prior_takes_its_draws_as_an_input(exported: Ex
         inputs = {"past": past.astype(np.float32), "agent_mask": mask, "speed0": speed0.astype(np.float32)}
         inputs["goals"] = goals.transpose(0, 2, 1, 3).astype(np.float32)
         noise = torch.randn((3, agents, z_dim), generator=generator(5, torch.device("cpu"))).numpy()[None]
-        (got,) = session.run(None, inputs | {"noise": noise})
+        got, likely = session.run(None, inputs | {"noise": noise})
         assert got.shape == expected.shape and np.abs(got - expected).max() < 1e-4
-        (other,) = session.run(None, inputs | {"noise": -noise})  # other draws, other futures
-        assert np.abs(other - got).max() > 1e-3
+        other, same = session.run(None, inputs | {"noise": -noise})  # other draws, other futures, the same centre
+        assert np.abs(other - got).max() > 1e-3 and np.array_equal(same, likely)
+        assert np.abs(likely - model.most_likely(past, mask, goals=goals[:, :, 0])).max() < 1e-4
 
     by_graph, by_torch = OnlinePredictor(exported.prior, k=3, seed=5), OnlinePredictor(model, k=3, seed=5)
     for step in range(9):
@@ -135,6 +140,7 @@ def test_a_model_drawing_from_its_prior_takes_its_draws_as_an_input(exported: Ex
         torch_path = by_torch.update(0.4 * step, detections, goals)
         assert list(graph.agents) == list(torch_path.agents) == ([7, 8, 9] if step >= 7 else [])
         assert np.abs(graph.futures - torch_path.futures).max(initial=0.0) < 1e-4
+        assert np.abs(graph.most_likely - torch_path.most_likely).max(initial=0.0) < 1e-4
 
 
 @pytest.mark.slow
@@ -194,6 +200,7 @@ def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
         ({"k": None} | {"drop": "k"}, r"missing \['k'\]"),
         ({"goal_unet": {"config": {"crop_cells": "wide"}}}, "goal_unet: expected its config and sampling"),
         ({"codes": PRIOR_DRAWS}, "z_dim: expected the codes' size"),
+        ({"outputs": {"futures": "(1, 3, A, 12, 2)"}}, "outputs: expected futures and most_likely .*export again"),
     ],
 )
 def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict, message: str) -> None:
@@ -203,6 +210,7 @@ def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict
 
     manifest = {"format": "ONNX, opset 18", "variant": "dr", "k": 3, "obs_len": 8, "pred_len": 12, "step_s": 0.4}
     manifest["inputs"] = {name: {} for name in ("past", "agent_mask", "goals", "speed0")}
+    manifest["outputs"] = {"futures": "(1, 3, A, 12, 2)", "most_likely": "(1, A, 12, 2)"}
     manifest |= {key: value for key, value in edit.items() if key != "drop"}
     manifest.pop(edit.get("drop", ""), None)
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))

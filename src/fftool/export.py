@@ -17,7 +17,10 @@ takes one scene (a window of A agents, any A) at a time, and what the torch path
 A model with a DLow sampler decodes the sampler's K codes, and a goal variant whose profile decodes each goal
 from the prior's mean (`evaluate.fair_code`) its prior's mean: their graphs take no noise.
 
-Output: `futures` (1, K, A, pred_len, 2) float32, world metres. A goal variant exported with its goal U-Net
+Outputs, world metres, float32: `futures` (1, K, A, pred_len, 2), and `most_likely` (1, A, pred_len, 2), the one
+future a planner may want (`fftool.api.Model.most_likely`: the prior's mean code toward goal 1, decoded in the same
+rollout as one more code or window; sample 1 itself where the model decodes each goal from that mean). A goal
+variant exported with its goal U-Net
 also gets `goal_unet.onnx`: `past` (A, obs_len, 2) float32 metres in, each agent's goal map out (`logits`
 (A, S, S) over its crop, the crop's `centre` (A, 2) and `rotation` (A, 2, 2)); the sampling from those maps
 (TTST's draws and k-means, `fftool.science.heatmaps.sample_goals`) stays on the host, for the same reason;
@@ -85,7 +88,7 @@ class _Graph(torch.nn.Module):
         speed0: torch.Tensor | None = None,
         group: torch.Tensor | None = None,
         noise: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         B, A, T, _ = past.shape
         past = torch.where(agent_mask[:, :, None, None], past, torch.zeros_like(past))
         xy = torch.cat([past, past.new_zeros(B, A, self.pred_len, 2)], 2)
@@ -94,7 +97,10 @@ class _Graph(torch.nn.Module):
         group = torch.full((B, A), -1, dtype=torch.long, device=past.device) if group is None else group
         batch = SceneBatch(xy, agent_mask, zeros, zeros, speed0, group, torch.zeros_like(group))
         goals = past[:, None, :, T - 1].expand(-1, self.k, -1, -1) if goals is None else goals
-        return self.predictor(batch, goals, None if noise is None else noise.reshape(B * self.k, A, self.z_dim))
+        noise = None if noise is None else noise.reshape(B * self.k, A, self.z_dim)
+        futures, most_likely = self.predictor.draw(batch, goals, with_most_likely=True, noise=noise)
+        assert most_likely is not None
+        return futures, most_likely
 
 
 class _GoalGraph(torch.nn.Module):
@@ -176,7 +182,10 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
         "step_s": model.step_s,
         "forces": model.trained.forces_config.model_dump() if model.trained.forces_config else None,
         "inputs": {name: _describe(name, model.obs_len, graph.k, graph.z_dim) for name in names},
-        "outputs": {"futures": f"(1, {graph.k}, A, {model.pred_len}, 2) float32, world metres"},
+        "outputs": {
+            "futures": f"(1, {graph.k}, A, {model.pred_len}, 2) float32, world metres",
+            "most_likely": f"(1, A, {model.pred_len}, 2) float32, world metres, the prior's mean code toward goal 1",
+        },
         "source": source,
     }
     if goal_sampler is not None:
@@ -188,7 +197,7 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
             str(partial / ONNX_FILE),
             kwargs=kwargs,
             input_names=names,
-            output_names=["futures"],
+            output_names=["futures", "most_likely"],
             dynamic_shapes={name: dims[name] for name in names},
             opset_version=OPSET,
             dynamo=True,
@@ -196,7 +205,7 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
             verbose=False,
             optimize=False,
         )
-        _name_output_dims(partial / ONNX_FILE, [[1, graph.k, "A", model.pred_len, 2]])
+        _name_output_dims(partial / ONNX_FILE, [[1, graph.k, "A", model.pred_len, 2], [1, "A", model.pred_len, 2]])
         if goal_sampler is not None:
             _export_goal_unet(goal_sampler, model.obs_len, model.pred_len, partial / GOAL_ONNX_FILE)
         (partial / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")

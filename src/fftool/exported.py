@@ -1,6 +1,7 @@
-"""An `fftool export` folder run by onnxruntime: the K futures of one scene per call, as the torch path gives
-them within 1e-4 m, and a goal variant's goals from its exported goal U-Net. `fftool.online.OnlinePredictor`
-runs on one when given its folder; a planner's own code needs only onnxruntime and the manifest (docs/api.md)."""
+"""An `fftool export` folder run by onnxruntime: the K futures and the most-likely future of one scene per call, as
+the torch path gives them within 1e-4 m, and a goal variant's goals from its exported goal U-Net.
+`fftool.online.OnlinePredictor` runs on one when given its folder; a planner's own code needs only onnxruntime and
+the manifest (docs/api.md)."""
 
 from __future__ import annotations
 
@@ -70,6 +71,10 @@ class ExportedModel:
             raise InputError(f"{where}: z_dim: expected the codes' size (a whole number) for the noise input")
         if list(manifest["inputs"]) != expected:
             raise InputError(f"{where}: inputs {list(manifest['inputs'])}, expected {expected} for its variant")
+        if list(manifest.get("outputs", {})) != ["futures", "most_likely"]:
+            raise InputError(
+                f"{where}: outputs: expected futures and most_likely (an earlier fftool's export: export again)"
+            )
         try:
             forces = ForcesConfig.model_validate(manifest["forces"]) if manifest.get("forces") else None
         except ValidationError as exc:
@@ -105,10 +110,11 @@ class ExportedModel:
     def step_s(self) -> float:
         return float(self.manifest["step_s"])
 
-    def futures(self, past: np.ndarray, goals: np.ndarray | None = None, seed: int = 0) -> np.ndarray:
-        """(M, K, pred_len, 2) metres for the M agents of one scene observed at past (M, obs_len, 2) metres;
-        goals (M, K, 2) for goal variants, sample k steering toward goal k. A model drawing from its prior gets
-        the standard normal draws the torch path makes with `seed`, so both give the same futures."""
+    def draw(self, past: np.ndarray, goals: np.ndarray | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """The K futures (M, K, pred_len, 2) and the most-likely future (M, pred_len, 2), metres, of the M agents
+        of one scene observed at past (M, obs_len, 2) metres; goals (M, K, 2) for goal variants, sample k steering
+        toward goal k. A model drawing from its prior gets the standard normal draws the torch path makes with
+        `seed`, so both give the same futures."""
         past = np.asarray(past, np.float32)[None]
         mask = np.ones(past.shape[:2], bool)
         groups = "group" in self.manifest["inputs"]  # as the torch path: DBSCAN only for a variant that reads groups
@@ -119,8 +125,8 @@ class ExportedModel:
         if "noise" in self.manifest["inputs"]:
             shape = (self.k, past.shape[1], int(self.manifest["z_dim"]))  # the torch path's (K windows, A, Z)
             values["noise"] = torch.randn(shape, generator=generator(seed, self.device)).numpy()[None]
-        (futures,) = self.session.run(None, {name: values[name] for name in self.manifest["inputs"]})
-        return futures[0].transpose(1, 0, 2, 3)
+        futures, most_likely = self.session.run(None, {name: values[name] for name in self.manifest["inputs"]})
+        return futures[0].transpose(1, 0, 2, 3), most_likely[0]
 
 
 def _session(path: Path, threads: int | None) -> Any:

@@ -53,8 +53,7 @@ class OnlineFutures:
     agents: np.ndarray  # (M,) ids as the detections gave them, sorted
     futures: np.ndarray  # (M, K, pred_len, 2) metres
     goals: np.ndarray  # (M, K, 2) the goal each future steered toward (the last position for goal-free variants)
-    # (M, pred_len, 2) one future per agent for a planner that wants one (`Model.most_likely`); empty (0,) from an
-    # exported model, whose graph gives the K futures only
+    # (M, pred_len, 2) one future per agent for a planner that wants one (`Model.most_likely`)
     most_likely: np.ndarray
 
     def table(self) -> pd.DataFrame:
@@ -172,8 +171,8 @@ class OnlinePredictor:
         return result
 
     def _exported(self, past: np.ndarray, labels: np.ndarray, goals: Detections | None) -> Drawn:
-        """An exported model's K futures of the agents observed at past (M, obs_len, 2): one scene, one call of
-        its graph; the same goals as the torch path (passed first, else the goal sampler's K)."""
+        """An exported model's K futures and most-likely future of the agents observed at past (M, obs_len, 2): one
+        scene, one call of its graph; the same goals as the torch path (passed first, else the goal sampler's K)."""
         model, k = self.model, self.k
         assert isinstance(model, ExportedModel)
         if reads_goal(model.variant):
@@ -183,8 +182,8 @@ class OnlinePredictor:
             )  # fmt: skip
         else:
             chosen = np.repeat(past[:, None, -1], k, 1)
-        futures = model.futures(past, chosen if reads_goal(model.variant) else None, self.seed)
-        return Drawn(chosen, futures, np.zeros(0))
+        futures, most_likely = model.draw(past, chosen if reads_goal(model.variant) else None, self.seed)
+        return Drawn(chosen, futures, most_likely)
 
     def _checked(self, time_s: object, detections: object) -> tuple[np.ndarray, np.ndarray]:
         """(M,) agent ids and (M, 2) positions of an update, or an InputError before any state changes."""

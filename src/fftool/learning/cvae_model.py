@@ -69,7 +69,8 @@ def sample(
     (a prior draw without a sampler), or the prior's mean where `pick` is -1. with_mean: the prior's mean code
     decoded in the same rollout as one more sample, last (`most_likely`'s future at the cost of a few more
     tokens instead of a second rollout); the draws are those without it. noise: the standard normal draws of the
-    prior's codes, (B · K, A, Z) window-major (under `pick`, one per window drawn), instead of generator_'s."""
+    prior's codes, (B · K, A, Z) window-major (under `pick`, one per window, zero where the window decodes the
+    mean), instead of generator_'s."""
     with autocast(cfg, prepared.past.device):
         tokens, agent_context = model.encode_past(prepared.past, prepared.agent_mask)
         prior = model.prior(agent_context)
@@ -77,8 +78,10 @@ def sample(
         if pick is not None:  # one code per window
             mean_rows = pick < 0
             if sampler is None:
-                z = prior.mu.clone()
-                z[~mean_rows] = Gaussian(prior.mu[~mean_rows], prior.logvar[~mean_rows]).sample(generator_, noise)
+                if noise is None:  # the generator's draws for the windows that draw, in order; none for the mean's
+                    noise = torch.zeros_like(prior.mu)
+                    noise[~mean_rows] = torch.randn(noise[~mean_rows].shape, generator=generator_, device=noise.device)
+                z = prior.sample(noise=noise)  # μ itself where the noise is zero
             else:
                 codes = sampler(agent_context).b  # (B, A, K', Z)
                 picked = codes[torch.arange(B, device=codes.device), :, pick.clamp_min(0)]

@@ -107,6 +107,9 @@ class Predictor:
                 pick = torch.zeros(B * windows, dtype=torch.long, device=self.device)
             if pick is not None and extra:
                 pick[k::windows] = -1  # the extra window decodes the prior's mean code
+                if noise is not None:  # ... with no draw
+                    noise = torch.cat([noise.view(B, k, *noise.shape[1:]), noise.new_zeros(B, 1, *noise.shape[1:])], 1)
+                    noise = noise.flatten(0, 1)
         else:
             goal, draws = goals[:, 0], k
         if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
