@@ -41,11 +41,13 @@ def scene(raw_tree: Path, built_store: ArtifactStore) -> dict:
 
 def test_past_forces_recomputed_toward_the_true_goal_equal_the_stored_ones(scene: dict) -> None:
     batch: SceneBatch = scene["batch"]
-    again = with_past_forces(batch, batch.xy[:, :, -1], ForcesConfig(), 0.4, 8)
+    again = with_past_forces(batch, batch.xy[:, :, -1], ForcesConfig(), 0.4, 8, ("f_dr", "f_re"))
     mask = batch.agent_mask
     torch.testing.assert_close(again.f_dr[:, :, :8][mask], batch.f_dr[:, :, :8][mask], atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(again.f_re[:, :, :8][mask], batch.f_re[:, :, :8][mask], atol=1e-4, rtol=1e-4)
     assert again.f_dr[:, :, 8:].abs().sum() == 0  # the future forces are never handed to the sampler
+    dr_only = with_past_forces(batch, batch.xy[:, :, -1], ForcesConfig(), 0.4, 8, ("f_dr", "speed0"))
+    assert torch.equal(dr_only.f_dr, again.f_dr) and dr_only.f_re.abs().sum() == 0  # what dr reads, nothing else
 
 
 def test_all_forces_recomputed_toward_the_true_goal_equal_the_stored_ones(scene: dict) -> None:

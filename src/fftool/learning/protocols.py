@@ -30,7 +30,6 @@ from fftool.science.social_forces import (
     finite_difference_velocity,
     group_pairs,
     repulsive_force,
-    social_forces,
 )
 
 PROTOCOLS: Final = ("paper", "fair", "oracle")
@@ -59,16 +58,20 @@ def protocol_goals(protocol: str, sampled: Tensor | None, truth_end: Tensor, k: 
     raise ValueError(f"unknown goal protocol {protocol!r}; one of {', '.join(PROTOCOLS)}")
 
 
-def with_past_forces(batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: float, obs_len: int) -> SceneBatch:
-    """The batch with F_dr, F_re of the observed steps recomputed toward `goal` (B, A, 2) and the
-    future steps zeroed (the sampler never reads them; the decoder recomputes its own)."""
-    past = batch.xy[:, :, :obs_len]
-    present = batch.agent_mask[:, :, None].expand(-1, -1, obs_len)
-    velocity = finite_difference_velocity(past, present, dt_s, obs_len)
-    speed0 = desired_speed(velocity, present, obs_len, cfg)
-    f_dr, f_re = social_forces(past, present, goal, velocity, speed0, group_pairs(batch.group), cfg)
-    future = torch.zeros_like(batch.f_dr[:, :, obs_len:])
-    return replace(batch, f_dr=torch.cat([f_dr, future], 2), f_re=torch.cat([f_re, future], 2))
+def with_past_forces(
+    batch: SceneBatch, goal: Tensor, cfg: ForcesConfig, dt_s: float, obs_len: int, arrays: tuple[str, ...]
+) -> SceneBatch:
+    """The batch with the forces arrays named (f_dr, f_re: what the variant's encoder reads) of the observed
+    steps recomputed toward `goal` (B, A, 2) from the observed positions alone; their future steps and the
+    arrays not named are zeros (the sampler never reads them; the decoder recomputes its own)."""
+    observed = replace(batch, xy=batch.xy[:, :, :obs_len])
+    recomputed = with_forces(observed, goal, cfg, dt_s, obs_len, arrays)
+    zeros = torch.zeros_like(batch.f_dr)
+    forces = {
+        name: torch.cat([getattr(recomputed, name), zeros[:, :, obs_len:]], 2) if name in arrays else zeros
+        for name in ("f_dr", "f_re")
+    }
+    return replace(batch, **forces)
 
 
 def with_forces(

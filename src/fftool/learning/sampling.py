@@ -24,7 +24,7 @@ from fftool.learning.protocols import constant_velocity, protocol_goals, repeat_
 from fftool.learning.training import generator
 from fftool.models.dlow import QNet
 from fftool.science.metrics import ade_fde
-from fftool.variants import reads_goal
+from fftool.variants import SPECS, reads_goal
 
 # (batch, positions of its slots in the scene set's rows, -1 for padding) -> (B, K, A, 2) world goals
 GoalsOf = Callable[[SceneBatch, np.ndarray], torch.Tensor]
@@ -113,7 +113,8 @@ class Predictor:
         else:
             goal, draws = goals[:, 0], k
         if self.forces_cfg is not None and self.dt_s is not None:  # dr, re: forces toward the goal used
-            batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len)
+            reads = SPECS[self.variant].training_reads
+            batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, obs_len, reads)
         prepared = prepare(batch, self.variant, obs_len, goal=goal)
         if mean_codes:  # each goal decoded from the prior's mean code
             futures = most_likely(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s)
@@ -134,7 +135,8 @@ class Predictor:
         if self.model is None:
             raise ValueError("constant velocity has no prior: its sample 0 is its exact extrapolation")
         if self.forces_cfg is not None and self.dt_s is not None:
-            batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, self.obs_len)
+            reads = SPECS[self.variant].training_reads
+            batch = with_past_forces(batch, goal, self.forces_cfg, self.dt_s, self.obs_len, reads)
         prepared = prepare(batch, self.variant, self.obs_len, goal=goal)
         future = most_likely(self.model, prepared, self.model_cfg, self.forces_cfg, self.dt_s)
         return prepared.to_world(future)[:, 0]
