@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import subprocess
 import sys
 import tempfile
@@ -56,6 +57,15 @@ def stream(name: str, agents: int, goals: str, updates: int) -> list[float]:
             times.append(time.perf_counter() - began)
             assert len(result.agents) == agents
     return times
+
+
+def cpu_name() -> str:
+    """The processor's model name (latencies depend on it more than on anything else here)."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        return next(line.split(":", 1)[1].strip() for line in lines if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or platform.machine()
 
 
 def export_all(names: list[str], folder: Path) -> dict[str, str]:
@@ -126,6 +136,8 @@ def main() -> None:
     lines = [
         f"`OnlinePredictor(model).update`, K = 20, one thread, {head.strip()}: torch's eager path and the model's "
         f"export run by onnxruntime, {args.rounds} alternating rounds; milliseconds per update.",
+        "",
+        f"CPU: {cpu_name()}, {os.cpu_count()} cores",
         "",
         "| model | agents | goals | eager: median / p99 | onnxruntime: median / p99 | eager / onnxruntime (medians) |",
         "|---|---:|---|---:|---:|---:|",
