@@ -37,6 +37,7 @@ def main() -> None:
         print(f"export: {time.perf_counter() - began:.0f} s, {(folder / ONNX_FILE).stat().st_size / 1e6:.1f} MB")
     options = onnxruntime.SessionOptions()
     options.intra_op_num_threads = options.inter_op_num_threads = 1
+    options.log_severity_level = 3  # errors only: loading prints a warning per cast it cannot fold otherwise
     session = onnxruntime.InferenceSession(str(folder / ONNX_FILE), options, providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(0)
     print("| agents | torch median / max (ms) | onnxruntime median / max (ms) | ratio | largest difference (m) |")
