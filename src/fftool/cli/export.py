@@ -40,8 +40,8 @@ def export(
 ) -> None:
     """Export a CVAE to ONNX with how it gets its K codes (a DLow sampler, the prior's mean, or prior draws whose
     standard normal noise is an input), a goal variant's goal U-Net beside it, and a manifest of their inputs,
-    units and where they came from. The graph is deterministic: goals, desired speeds, groups and any random
-    draws are inputs computed by the host."""
+    units and where they came from. The graph gives the K futures and the most-likely future; it is
+    deterministic: goals, desired speeds, groups and any random draws are inputs computed by the host."""
     from fftool import zoo
     from fftool.api import load, load_goal_sampler
     from fftool.export import EXPORT, GOAL_ONNX_FILE, ONNX_FILE
