@@ -1,9 +1,10 @@
-"""`fftool export`: the ONNX graph of a CVAE with its DLow sampler, or drawing from its prior with the draws as an
-input, gives the torch path's futures (within 1e-4 m) for any number of agents, run by onnxruntime alone; its
-folder is fftool's own."""
+"""`fftool export`: the ONNX graphs of a CVAE (each goal from its prior's mean code, a DLow sampler's codes for a
+known goal, or drawing from its prior with the draws as an input) give the torch path's futures and most-likely
+future (within 1e-4 m) for any number of agents, run by onnxruntime alone; its folder is fftool's own."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,12 +16,12 @@ import torch
 from typer.testing import CliRunner
 
 from fftool import pipeline
-from fftool.api import load, load_goal_sampler
+from fftool.api import Model, load, load_goal_sampler
 from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.cli import app
 from fftool.config import predictor_config
 from fftool.errors import UsageError
-from fftool.export import EXPORT, PRIOR_DRAWS
+from fftool.export import DLOW_CODES, EXPORT, MEAN_CODES, PRIOR_DRAWS, export
 from fftool.learning.observed import desired_speed_and_groups
 from fftool.learning.training import generator
 from fftool.online import OnlinePredictor
@@ -37,37 +38,42 @@ class Export:
     dlow: Artifact
     goal: Artifact
     out: Path
-    prior: Path  # the same CVAE without its sampler: drawing from its prior
+    model: Model  # what `out` exports: the CVAE decoding each of K goals from its prior's mean, DLow codes for one
+    prior: Path  # the same CVAE without its sampler, drawing from its prior (`fftool export` on its id)
 
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory: pytest.TempPathFactory) -> Export:
-    """A dr model, its DLow sampler and a goal U-Net trained on the tiny data and exported together, once: the
-    export unrolls the decoder's 12 steps, the slow part of these tests."""
+    """A dr model, its DLow sampler and a goal U-Net trained on the tiny data and exported together, as the shipped
+    re is (each of K goals from the prior's mean code, the sampler's codes toward a known goal), and the same CVAE
+    drawing from its prior, once each: an export unrolls the decoder's 12 steps, the slow part of these tests."""
     base = tmp_path_factory.mktemp("export")
     store = ArtifactStore(base / "artifacts")
     cfg = predictor_config(_cfg(make_raw_tree(base / "raw")), "dr")
     built = pipeline.run(cfg, store, ["dlow", "goal"], benchmark="zara1")
     cvae, dlow, goal = built["cvae"], built["dlow"], built["goal"]
+    model = dataclasses.replace(load(cvae.id, root=store.root, dlow=dlow.id), fair_code="mean")
     out = base / "exported"
-    args = ["export", cvae.id, "--dlow", dlow.id, "--goal-model", goal.id, "--root", str(store.root), "--out", str(out)]
-    result = CliRunner().invoke(app, args)
-    assert result.exit_code == 0, result.output
+    source = {"model": cvae.id, **model.fingerprints, "goal_model": goal.id}
+    export(model, out, source, load_goal_sampler(goal.id, root=store.root))
     prior = base / "exported_prior"
     result = CliRunner().invoke(app, ["export", cvae.id, "--root", str(store.root), "--out", str(prior)])
     assert result.exit_code == 0, result.output
-    return Export(store, cvae, dlow, goal, out, prior)
+    assert "wrote model.onnx, model_one_goal.onnx " in result.output.replace("\n", " ")
+    return Export(store, cvae, dlow, goal, out, model, prior)
 
 
 @pytest.mark.slow
 def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(exported: Export) -> None:
-    store, cvae, dlow, out = exported.store, exported.cvae, exported.dlow, exported.out
+    store, cvae, dlow, out, model = exported.store, exported.cvae, exported.dlow, exported.out, exported.model
     manifest = json.loads((out / "manifest.json").read_text())
     assert list(manifest["inputs"]) == ["past", "agent_mask", "goals", "speed0"] and manifest["k"] == 3
+    assert list(manifest["one_goal"]["inputs"]) == ["past", "agent_mask", "goal", "speed0"]
+    assert (manifest["codes"], manifest["one_goal"]["codes"]) == (MEAN_CODES, DLOW_CODES)
     source = {"model": cvae.id, "cvae": cvae.fingerprint, "dlow": dlow.fingerprint, "goal_model": exported.goal.id}
     assert manifest["source"] == source
     session = onnxruntime.InferenceSession(str(out / "model.onnx"), providers=["CPUExecutionProvider"])
-    model = load(cvae.id, root=store.root, dlow=dlow.id)
+    one_goal = onnxruntime.InferenceSession(str(out / "model_one_goal.onnx"), providers=["CPUExecutionProvider"])
     assert load(dlow.id, root=store.root).fingerprints == model.fingerprints  # a sampler brings its CVAE
     rng = np.random.default_rng(1)
     for agents in (1, 2, 6):
@@ -83,8 +89,15 @@ def test_an_exported_dr_gives_the_torch_futures_for_any_number_of_agents(exporte
         assert np.abs(got - expected)[:, :, mask[0]].max() < 1e-4
         centre = model.most_likely(past, mask, goals=goals[:, :, 0])  # the prior's mean code toward goal 1
         assert likely.shape == centre.shape and np.abs(likely - centre)[:, mask[0]].max() < 1e-4
+        known = model.predict(past, mask, k=3, goals=goals[:, :, 0])  # one goal per agent: the sampler's codes
+        got, likely = one_goal.run(None, inputs | {"goal": goals[:, :, 0].astype(np.float32)})
+        assert np.abs(got - known)[:, :, mask[0]].max() < 1e-4 and np.abs(likely - centre)[:, mask[0]].max() < 1e-4
+        repeated = np.repeat(goals[:, None, :, 0], 3, 1).astype(np.float32)  # goal 1 as each sample's goal
+        other, _ = session.run(None, inputs | {"goals": repeated})
+        assert np.abs(other - got)[:, :, mask[0]].max() > 1e-2  # decodes the prior's mean, not the sampler's codes
 
-    # The online predictor on the export (onnxruntime) gives the torch one's futures, update by update.
+    # The online predictor on the export (onnxruntime) gives the torch one's futures, update by update: here every
+    # goal is passed, so both decode the sampler's codes toward it (model_one_goal.onnx).
     with pytest.raises(UsageError, match="exported with K = 3"):
         OnlinePredictor(out)
     by_graph, by_torch = OnlinePredictor(out, k=3), OnlinePredictor(model, k=3)
@@ -113,9 +126,14 @@ def test_a_model_drawing_from_its_prior_takes_its_draws_as_an_input(exported: Ex
     assert model.sampler is None and not model.mean_codes("fair")
     manifest = json.loads((exported.prior / "manifest.json").read_text())
     assert list(manifest["inputs"]) == ["past", "agent_mask", "goals", "speed0", "noise"]
+    assert list(manifest["one_goal"]["inputs"]) == ["past", "agent_mask", "goal", "speed0", "noise"]
+    assert manifest["one_goal"]["codes"] == PRIOR_DRAWS
     z_dim = model.trained.config.z_dim
     assert (manifest["codes"], manifest["z_dim"], manifest["k"]) == (PRIOR_DRAWS, z_dim, 3)
     session = onnxruntime.InferenceSession(str(exported.prior / "model.onnx"), providers=["CPUExecutionProvider"])
+    one_goal = onnxruntime.InferenceSession(
+        str(exported.prior / "model_one_goal.onnx"), providers=["CPUExecutionProvider"]
+    )
     rng = np.random.default_rng(3)
     for agents in (1, 2, 6):
         past = np.cumsum(rng.normal(0.3, 0.1, (1, agents, 8, 2)), 2) + rng.normal(0, 3, (1, agents, 1, 2))
@@ -124,13 +142,16 @@ def test_a_model_drawing_from_its_prior_takes_its_draws_as_an_input(exported: Ex
         expected = model.predict(past, mask, k=3, goals=goals, seed=5)
         speed0, _ = desired_speed_and_groups(past, mask, model.trained.forces_config, model.trained.dt_s)
         inputs = {"past": past.astype(np.float32), "agent_mask": mask, "speed0": speed0.astype(np.float32)}
-        inputs["goals"] = goals.transpose(0, 2, 1, 3).astype(np.float32)
         noise = torch.randn((3, agents, z_dim), generator=generator(5, torch.device("cpu"))).numpy()[None]
+        known = inputs | {"goal": goals[:, :, 0].astype(np.float32), "noise": noise}
+        inputs |= {"goals": goals.transpose(0, 2, 1, 3).astype(np.float32)}
         got, likely = session.run(None, inputs | {"noise": noise})
         assert got.shape == expected.shape and np.abs(got - expected).max() < 1e-4
         other, same = session.run(None, inputs | {"noise": -noise})  # other draws, other futures, the same centre
         assert np.abs(other - got).max() > 1e-3 and np.array_equal(same, likely)
         assert np.abs(likely - model.most_likely(past, mask, goals=goals[:, :, 0])).max() < 1e-4
+        one, _ = one_goal.run(None, known)  # one goal per agent: the torch path's draws for a known goal
+        assert np.abs(one - model.predict(past, mask, k=3, goals=goals[:, :, 0], seed=5)).max() < 1e-4
 
     by_graph, by_torch = OnlinePredictor(exported.prior, k=3, seed=5), OnlinePredictor(model, k=3, seed=5)
     for step in range(9):
@@ -147,8 +168,13 @@ def test_a_model_drawing_from_its_prior_takes_its_draws_as_an_input(exported: Ex
 def test_an_exported_goal_unet_draws_the_torch_goals(exported: Export) -> None:
     """A goal variant exported with its goal U-Net: goal_unet.onnx gives the torch goal maps (within 1e-4 of a
     logit), and the online predictor on the export draws its own goals and gives the torch path's futures."""
-    store, cvae, dlow, goal, out = exported.store, exported.cvae, exported.dlow, exported.goal, exported.out
-    assert sorted(p.name for p in out.iterdir()) == ["goal_unet.onnx", "manifest.json", "model.onnx"]
+    store, goal, out = exported.store, exported.goal, exported.out
+    assert sorted(p.name for p in out.iterdir()) == [
+        "goal_unet.onnx",
+        "manifest.json",
+        "model.onnx",
+        "model_one_goal.onnx",
+    ]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["goal_unet"]["crop_cells"] == goal.manifest.params["crop_cells"]
     sampler = load_goal_sampler(goal.id, root=store.root)
@@ -164,8 +190,7 @@ def test_an_exported_goal_unet_draws_the_torch_goals(exported: Export) -> None:
             assert graph_part.shape == tuple(torch_part.shape)
             assert np.abs(graph_part - torch_part.detach().numpy()).max() < 1e-4
 
-    model = load(cvae.id, root=store.root, dlow=dlow.id)
-    by_graph, by_torch = OnlinePredictor(out, k=3), OnlinePredictor(model, k=3, goal_sampler=sampler)
+    by_graph, by_torch = OnlinePredictor(out, k=3), OnlinePredictor(exported.model, k=3, goal_sampler=sampler)
     for step in range(9):
         detections = {agent: (0.5 * step * (agent - 6), 0.3 * agent - 0.1 * step) for agent in (7, 8, 9)}
         graph, torch_path = by_graph.update(0.4 * step, detections), by_torch.update(0.4 * step, detections)
@@ -201,6 +226,8 @@ def test_an_export_never_replaces_a_users_folder(tmp_path: Path) -> None:
         ({"goal_unet": {"config": {"crop_cells": "wide"}}}, "goal_unet: expected its config and sampling"),
         ({"codes": PRIOR_DRAWS}, "z_dim: expected the codes' size"),
         ({"outputs": {"futures": "(1, 3, A, 12, 2)"}}, "outputs: expected futures and most_likely .*export again"),
+        ({"drop": "one_goal"}, "one_goal: expected the known-goal graph .*export again"),
+        ({"one_goal": {"inputs": {"past": {}}}}, r"one_goal.inputs \['past'\], expected"),
     ],
 )
 def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict, message: str) -> None:
@@ -209,8 +236,12 @@ def test_a_damaged_export_manifest_is_one_input_error(tmp_path: Path, edit: dict
     from fftool.exported import ExportedModel
 
     manifest = {"format": "ONNX, opset 18", "variant": "dr", "k": 3, "obs_len": 8, "pred_len": 12, "step_s": 0.4}
-    manifest["inputs"] = {name: {} for name in ("past", "agent_mask", "goals", "speed0")}
-    manifest["outputs"] = {"futures": "(1, 3, A, 12, 2)", "most_likely": "(1, A, 12, 2)"}
+    outputs = {"futures": "(1, 3, A, 12, 2)", "most_likely": "(1, A, 12, 2)"}
+    manifest["inputs"], manifest["outputs"] = {name: {} for name in ("past", "agent_mask", "goals", "speed0")}, outputs
+    manifest["one_goal"] = {
+        "inputs": {name: {} for name in ("past", "agent_mask", "goal", "speed0")},
+        "outputs": outputs,
+    }
     manifest |= {key: value for key, value in edit.items() if key != "drop"}
     manifest.pop(edit.get("drop", ""), None)
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))

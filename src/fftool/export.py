@@ -1,30 +1,35 @@
-"""A trained predictor as an ONNX graph, for a planner that cannot load a pickled torch module.
+"""A trained predictor as ONNX graphs, for a planner that cannot load a pickled torch module.
 
-`fftool export cpu/zara1/dr --out zara1_dr/` writes `model.onnx` (the CVAE and how it gets its K codes) and
-`manifest.json` (what the graph takes and gives, in which units, and the fingerprints it came from). The graph
-takes one scene (a window of A agents, any A) at a time, and what the torch path computes before the network:
+`fftool export cpu/zara1/dr --out zara1_dr/` writes `model.onnx` (the CVAE and how it gets its K codes), for a
+goal variant `model_one_goal.onnx` beside it, and `manifest.json` (what each graph takes and gives, in which
+units, and the fingerprints it came from). A graph takes one scene (a window of A agents, any A) at a time, and
+what the torch path computes before the network:
 
 - `past` (1, A, obs_len, 2) float32, world metres; `agent_mask` (1, A) bool (padded slots are ignored);
-- goal variants: `goals` (1, K, A, 2) float32, sample k steering toward goal k (one goal per agent: repeat it);
+- goal variants, model.onnx: `goals` (1, K, A, 2) float32, sample k steering toward goal k (the goals a goal
+  U-Net draws); model_one_goal.onnx: `goal` (1, A, 2), each agent's known goal, every sample toward it. The two
+  are the torch path's two cases (`Model.predict` with goals per sample or per agent): with a known goal the
+  samples take the codes the model draws for one goal (its prior's draws or DLow codes), which a model that
+  decodes each of K goals from its prior's mean (`evaluate.fair_code`) does not, so repeating a goal K times in
+  model.onnx is not the same;
 - dr and re: `speed0` (1, A) float32, each agent's desired speed (m/s); re: `group` (1, A) int64, window-local
   group ids (-1 alone): `learning.observed.desired_speed_and_groups` computes both from `past` as the torch
   path does (the observed mean speed; DBSCAN groups);
-- a model that draws its codes from its prior (no DLow sampler, no mean codes): `noise` (1, K, A, Z) float32,
-  standard normal draws, code = prior mean + prior std · noise. The random draws stay on the host, so the graph
-  is deterministic: fftool draws them as the torch path does (`torch.randn` from the seeded generator), so its
+- a graph whose codes are prior draws (no DLow sampler, no mean codes): `noise` (1, K, A, Z) float32, standard
+  normal draws, code = prior mean + prior std · noise. The random draws stay on the host, so the graph is
+  deterministic: fftool draws them as the torch path does (`torch.randn` from the seeded generator), so its
   futures equal the torch path's; any other N(0, 1) source gives other, equally valid samples.
 
-A model with a DLow sampler decodes the sampler's K codes, and a goal variant whose profile decodes each goal
-from the prior's mean (`evaluate.fair_code`) its prior's mean: their graphs take no noise.
+The manifest's `codes` (and `one_goal.codes`) says how each graph gets its K codes: a DLow sampler's, the prior's
+mean per goal, or prior draws (the only ones that take `noise`).
 
 Outputs, world metres, float32: `futures` (1, K, A, pred_len, 2), and `most_likely` (1, A, pred_len, 2), the one
 future a planner may want (`fftool.api.Model.most_likely`: the prior's mean code toward goal 1, decoded in the same
 rollout as one more code or window; sample 1 itself where the model decodes each goal from that mean). A goal
-variant exported with its goal U-Net
-also gets `goal_unet.onnx`: `past` (A, obs_len, 2) float32 metres in, each agent's goal map out (`logits`
-(A, S, S) over its crop, the crop's `centre` (A, 2) and `rotation` (A, 2, 2)); the sampling from those maps
-(TTST's draws and k-means, `fftool.science.heatmaps.sample_goals`) stays on the host, for the same reason;
-the manifest's `goal_unet` block has its settings and the cell-to-world formula.
+variant exported with its goal U-Net also gets `goal_unet.onnx`: `past` (A, obs_len, 2) float32 metres in, each
+agent's goal map out (`logits` (A, S, S) over its crop, the crop's `centre` (A, 2) and `rotation` (A, 2, 2)); the
+sampling from those maps (TTST's draws and k-means, `fftool.science.heatmaps.sample_goals`) stays on the host, for
+the same reason; the manifest's `goal_unet` block has its settings and the cell-to-world formula.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from fftool.outputs import Kind, check_output, replacing_folder
 from fftool.variants import SPECS, reads_goal
 
 ONNX_FILE = "model.onnx"
+ONE_GOAL_ONNX_FILE = "model_one_goal.onnx"
 GOAL_ONNX_FILE = "goal_unet.onnx"
 MANIFEST_FILE = "manifest.json"
 OPSET = 18
@@ -52,32 +58,40 @@ MAX_AGENTS = 4096  # agents in one scene the graph takes
 DLOW_CODES, MEAN_CODES, PRIOR_DRAWS = "DLow sampler", "prior mean per goal", "prior draws: mean + std · noise"
 
 
-def input_names(variant: str, codes: str) -> list[str]:
-    """The graph's inputs, in order, for a CVAE variant whose codes come as `codes` says."""
+def input_names(variant: str, codes: str, one_goal: bool = False) -> list[str]:
+    """The graph's inputs, in order, for a CVAE variant whose codes come as `codes` says; one_goal: the graph of a
+    goal variant that takes one known goal per agent (`goal`) instead of one per sample (`goals`)."""
     names = ["past", "agent_mask"]
-    names += ["goals"] if reads_goal(variant) else []
+    names += [("goal" if one_goal else "goals")] if reads_goal(variant) else []
     names += ["speed0"] if SPECS[variant].uses_forces else []
     names += ["group"] if variant == "re" else []
     names += ["noise"] if codes == PRIOR_DRAWS else []
     return names
 
 
-def codes_of(model: Any) -> str:
-    """How `model` (an fftool.api.Model) gets its K codes in an exported graph."""
-    if model.sampler is not None:
-        return DLOW_CODES
-    return MEAN_CODES if model.mean_codes("fair") else PRIOR_DRAWS
+def protocol_of(variant: str, one_goal: bool) -> str:
+    """The goal protocol a graph decodes under: sample k toward goal k (fair) for a goal variant's K goals; one
+    goal per agent for every sample, as the torch path decodes known goals (oracle), otherwise."""
+    return "fair" if reads_goal(variant) and not one_goal else "oracle"
+
+
+def codes_of(model: Any, protocol: str) -> str:
+    """How `model` (an fftool.api.Model) gets its K codes under `protocol` in an exported graph."""
+    if model.mean_codes(protocol):
+        return MEAN_CODES
+    return DLOW_CODES if model.sampler is not None else PRIOR_DRAWS
 
 
 class _Graph(torch.nn.Module):
-    """The torch path of `Model.predict` from its padded batch on, as one module of tensors in and out."""
+    """The torch path of `Model.predict` from its padded batch on, as one module of tensors in and out; one_goal:
+    a goal variant's path for one known goal per agent (`goal`), else for one goal per sample (`goals`)."""
 
-    def __init__(self, model: Any) -> None:  # an fftool.api.Model
+    def __init__(self, model: Any, one_goal: bool = False) -> None:  # an fftool.api.Model
         super().__init__()
         self.net, self.sampler = model.trained.model, model.sampler
         k = model.trained.config.k if model.sampler is None else model.sampler.k
-        self.predictor = model.predictor(k, 0, "fair" if reads_goal(model.variant) else "oracle")
-        self.variant, self.pred_len, self.k = model.variant, model.pred_len, k
+        self.predictor = model.predictor(k, 0, protocol_of(model.variant, one_goal))
+        self.variant, self.obs_len, self.pred_len, self.k = model.variant, model.obs_len, model.pred_len, k
         self.z_dim = model.trained.config.z_dim
 
     def forward(
@@ -88,8 +102,11 @@ class _Graph(torch.nn.Module):
         speed0: torch.Tensor | None = None,
         group: torch.Tensor | None = None,
         noise: torch.Tensor | None = None,
+        goal: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         B, A, T, _ = past.shape
+        if goal is not None:  # every sample of an agent toward its one goal
+            goals = goal[:, None].expand(-1, self.k, -1, -1)
         past = torch.where(agent_mask[:, :, None, None], past, torch.zeros_like(past))
         xy = torch.cat([past, past.new_zeros(B, A, self.pred_len, 2)], 2)
         zeros = torch.zeros_like(xy)
@@ -115,19 +132,20 @@ class _GoalGraph(torch.nn.Module):
 
 
 def example_inputs(
-    variant: str, codes: str, k: int, obs_len: int, z_dim: int, batch: int = 1, agents: int = 3
+    variant: str, codes: str, k: int, obs_len: int, z_dim: int, one_goal: bool = False, agents: int = 3
 ) -> dict[str, np.ndarray]:
     """Inputs of the graph's layout: one window (a scene: the graph takes one at a time) of `agents` agents (more
     than one: torch.export fixes a dimension of size 1)."""
     rng = np.random.default_rng(0)
-    steps = rng.normal(0.4, 0.05, (batch, agents, obs_len, 2)).astype(np.float32)
-    past = np.cumsum(steps, 2) + rng.normal(0, 2, (batch, agents, 1, 2)).astype(np.float32)
-    values = {"past": past, "agent_mask": np.ones((batch, agents), bool)}
-    values["goals"] = np.repeat(past[:, None, :, -1] + 4.0, k, 1).astype(np.float32)
-    values["speed0"] = np.full((batch, agents), 1.0, np.float32)
-    values["group"] = np.full((batch, agents), -1, np.int64)
-    values["noise"] = rng.standard_normal((batch, k, agents, z_dim)).astype(np.float32)
-    return {name: values[name] for name in input_names(variant, codes)}
+    steps = rng.normal(0.4, 0.05, (1, agents, obs_len, 2)).astype(np.float32)
+    past = np.cumsum(steps, 2) + rng.normal(0, 2, (1, agents, 1, 2)).astype(np.float32)
+    values = {"past": past, "agent_mask": np.ones((1, agents), bool)}
+    values["goal"] = (past[:, :, -1] + 4.0).astype(np.float32)
+    values["goals"] = np.repeat(values["goal"][:, None], k, 1)
+    values["speed0"] = np.full((1, agents), 1.0, np.float32)
+    values["group"] = np.full((1, agents), -1, np.int64)
+    values["noise"] = rng.standard_normal((1, k, agents, z_dim)).astype(np.float32)
+    return {name: values[name] for name in input_names(variant, codes, one_goal)}
 
 
 def is_export(folder: Path) -> bool:
@@ -141,7 +159,8 @@ def is_export(folder: Path) -> bool:
 
 def _foreign(folder: Path) -> str | None:
     """What an existing --out holds that is not an earlier export (None: it is one)."""
-    others = sorted(p.name for p in folder.iterdir() if p.name not in {ONNX_FILE, GOAL_ONNX_FILE, MANIFEST_FILE})
+    ours = {ONNX_FILE, ONE_GOAL_ONNX_FILE, GOAL_ONNX_FILE, MANIFEST_FILE}
+    others = sorted(p.name for p in folder.iterdir() if p.name not in ours)
     if others:
         return f"holds files fftool did not write ({', '.join(others[:5])})"
     return None if is_export(folder) else f"its {MANIFEST_FILE} is not an export's"
@@ -157,59 +176,76 @@ class Exported:
 
 
 def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = None) -> Exported:
-    """Write `model` (an fftool.api.Model) to `out` as model.onnx + manifest.json, and a goal variant's
-    `goal_sampler` (an fftool.api.GoalSampler) as goal_unet.onnx, built in a temporary folder beside it and
-    moved into place whole. source: where it came from (name, ids)."""
+    """Write `model` (an fftool.api.Model) to `out` as model.onnx (+ model_one_goal.onnx for a goal variant) and
+    manifest.json, and a goal variant's `goal_sampler` (an fftool.api.GoalSampler) as goal_unet.onnx, built in a
+    temporary folder beside it and moved into place whole. source: where it came from (name, ids)."""
     check_output(out, "--out", EXPORT)
     if goal_sampler is not None and not reads_goal(model.variant):
         raise UsageError(f"the {model.variant} variant reads no goal: it is exported without a goal U-Net")
-    graph, codes = _Graph(model).eval(), codes_of(model)
-    example = example_inputs(model.variant, codes, graph.k, model.obs_len, graph.z_dim)
-    names = list(example)
-    agents = torch.export.Dim("A", max=MAX_AGENTS)
-    dims = {"past": {1: agents}, "agent_mask": {1: agents}, "goals": {2: agents}, "speed0": {1: agents}}
-    dims |= {"group": {1: agents}, "noise": {2: agents}}
-    kwargs = {name: torch.as_tensor(example[name]) for name in names}
+    graph = _Graph(model).eval()
     manifest = {
         "fftool": __version__,
         "format": f"ONNX, opset {OPSET}",
         "variant": model.variant,
         "k": graph.k,
-        "codes": codes,
         "z_dim": graph.z_dim,
         "obs_len": model.obs_len,
         "pred_len": model.pred_len,
         "step_s": model.step_s,
         "forces": model.trained.forces_config.model_dump() if model.trained.forces_config else None,
-        "inputs": {name: _describe(name, model.obs_len, graph.k, graph.z_dim) for name in names},
-        "outputs": {
-            "futures": f"(1, {graph.k}, A, {model.pred_len}, 2) float32, world metres",
-            "most_likely": f"(1, A, {model.pred_len}, 2) float32, world metres, the prior's mean code toward goal 1",
-        },
+        **_graph_manifest(model, graph.k, graph.z_dim, one_goal=False),
         "source": source,
     }
+    if reads_goal(model.variant):
+        manifest["one_goal"] = {"file": ONE_GOAL_ONNX_FILE, **_graph_manifest(model, graph.k, graph.z_dim, True)}
     if goal_sampler is not None:
         manifest["goal_unet"] = _goal_manifest(goal_sampler, model.obs_len)
     with replacing_folder(out) as partial, torch.no_grad():
-        torch.onnx.export(
-            graph,
-            (),
-            str(partial / ONNX_FILE),
-            kwargs=kwargs,
-            input_names=names,
-            output_names=["futures", "most_likely"],
-            dynamic_shapes={name: dims[name] for name in names},
-            opset_version=OPSET,
-            dynamo=True,
-            external_data=False,
-            verbose=False,
-            optimize=False,
-        )
-        _name_output_dims(partial / ONNX_FILE, [[1, graph.k, "A", model.pred_len, 2], [1, "A", model.pred_len, 2]])
+        _export_graph(graph, manifest, partial / ONNX_FILE)
+        if reads_goal(model.variant):
+            _export_graph(_Graph(model, one_goal=True).eval(), manifest["one_goal"], partial / ONE_GOAL_ONNX_FILE)
         if goal_sampler is not None:
             _export_goal_unet(goal_sampler, model.obs_len, model.pred_len, partial / GOAL_ONNX_FILE)
         (partial / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")
     return Exported(out, manifest)
+
+
+def _graph_manifest(model: Any, k: int, z_dim: int, one_goal: bool) -> dict[str, Any]:
+    """What one graph takes and gives: how it gets its codes, its inputs and outputs."""
+    codes = codes_of(model, protocol_of(model.variant, one_goal))
+    names = input_names(model.variant, codes, one_goal)
+    return {
+        "codes": codes,
+        "inputs": {name: _describe(name, model.obs_len, k, z_dim) for name in names},
+        "outputs": {
+            "futures": f"(1, {k}, A, {model.pred_len}, 2) float32, world metres",
+            "most_likely": f"(1, A, {model.pred_len}, 2) float32, world metres, the prior's mean code toward goal 1",
+        },
+    }
+
+
+def _export_graph(graph: _Graph, described: dict[str, Any], path: Path) -> None:
+    """One CVAE graph at `path`, its inputs as `described` (a `_graph_manifest`) names them, any agent count."""
+    one_goal = "goal" in described["inputs"]
+    example = example_inputs(graph.variant, described["codes"], graph.k, graph.obs_len, graph.z_dim, one_goal)
+    agents = torch.export.Dim("A", max=MAX_AGENTS)
+    dims = {"past": {1: agents}, "agent_mask": {1: agents}, "goals": {2: agents}, "goal": {1: agents}}
+    dims |= {"speed0": {1: agents}, "group": {1: agents}, "noise": {2: agents}}
+    torch.onnx.export(
+        graph,
+        (),
+        str(path),
+        kwargs={name: torch.as_tensor(value) for name, value in example.items()},
+        input_names=list(example),
+        output_names=["futures", "most_likely"],
+        dynamic_shapes={name: dims[name] for name in example},
+        opset_version=OPSET,
+        dynamo=True,
+        external_data=False,
+        verbose=False,
+        optimize=False,
+    )
+    _name_output_dims(path, [[1, graph.k, "A", graph.pred_len, 2], [1, "A", graph.pred_len, 2]])
 
 
 def _export_goal_unet(goal_sampler: Any, obs_len: int, pred_len: int, path: Path) -> None:
@@ -275,6 +311,7 @@ def _describe(name: str, obs_len: int, k: int, z_dim: int) -> str:
         "past": f"(1, A, {obs_len}, 2) float32, world metres, the observed positions (oldest first)",
         "agent_mask": "(1, A) bool, real agents (padded slots are ignored)",
         "goals": f"(1, {k}, A, 2) float32, world metres, the goal of each sample",
+        "goal": "(1, A, 2) float32, world metres, each agent's known goal: every sample heads to it",
         "speed0": "(1, A) float32, m/s, each agent's desired speed (fftool: learning.observed)",
         "group": "(1, A) int64, window-local group ids, -1 alone (fftool: learning.observed)",
         "noise": f"(1, {k}, A, {z_dim}) float32, standard normal draws: sample k's code is the prior's mean + its "

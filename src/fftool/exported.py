@@ -18,7 +18,7 @@ from pydantic import ValidationError
 from fftool.api import draw_goals
 from fftool.config import ForcesConfig, GoalConfig, GoalsConfig
 from fftool.errors import InputError, UsageError
-from fftool.export import GOAL_ONNX_FILE, MANIFEST_FILE, ONNX_FILE, input_names, is_export
+from fftool.export import GOAL_ONNX_FILE, MANIFEST_FILE, ONE_GOAL_ONNX_FILE, ONNX_FILE, input_names, is_export
 from fftool.learning.observed import desired_speed_and_groups
 from fftool.learning.training import generator
 from fftool.variants import SPECS
@@ -45,7 +45,8 @@ class ExportedModel:
 
     folder: Path
     manifest: dict[str, Any]
-    session: Any  # onnxruntime.InferenceSession
+    session: Any  # onnxruntime.InferenceSession of model.onnx
+    one_goal_session: Any  # a goal variant's model_one_goal.onnx (one known goal per agent); None otherwise
     forces_config: ForcesConfig | None
     goal_sampler: ExportedGoalSampler | None  # a goal variant exported with its goal U-Net
     device = torch.device("cpu")  # where a goal sampler beside it runs
@@ -66,15 +67,13 @@ class ExportedModel:
             raise InputError(f"{where}: missing {missing}")
         if manifest["variant"] not in SPECS:
             raise InputError(f"{where}: variant {manifest['variant']!r} is none of {sorted(SPECS)}")
-        expected = input_names(manifest["variant"], str(manifest.get("codes")))
-        if "noise" in expected and not isinstance(manifest.get("z_dim"), int):
-            raise InputError(f"{where}: z_dim: expected the codes' size (a whole number) for the noise input")
-        if list(manifest["inputs"]) != expected:
-            raise InputError(f"{where}: inputs {list(manifest['inputs'])}, expected {expected} for its variant")
-        if list(manifest.get("outputs", {})) != ["futures", "most_likely"]:
-            raise InputError(
-                f"{where}: outputs: expected futures and most_likely (an earlier fftool's export: export again)"
-            )
+        _check_graph(where, manifest, manifest, "")
+        if SPECS[manifest["variant"]].reads_goal:
+            if not isinstance(manifest.get("one_goal"), dict):
+                raise InputError(
+                    f"{where}: one_goal: expected the known-goal graph (an earlier fftool's export: export again)"
+                )
+            _check_graph(where, manifest, manifest["one_goal"], "one_goal.")
         try:
             forces = ForcesConfig.model_validate(manifest["forces"]) if manifest.get("forces") else None
         except ValidationError as exc:
@@ -88,7 +87,8 @@ class ExportedModel:
             except (ValidationError, KeyError, TypeError) as exc:
                 raise InputError(f"{where}: goal_unet: expected its config and sampling ({exc})") from None
             goal_sampler = ExportedGoalSampler(_session(folder / GOAL_ONNX_FILE, threads), goal_cfg, sampling)
-        return cls(folder, manifest, _session(folder / ONNX_FILE, threads), forces, goal_sampler)
+        one_goal = _session(folder / ONE_GOAL_ONNX_FILE, threads) if manifest.get("one_goal") else None
+        return cls(folder, manifest, _session(folder / ONNX_FILE, threads), one_goal, forces, goal_sampler)
 
     @property
     def variant(self) -> str:
@@ -112,21 +112,44 @@ class ExportedModel:
 
     def draw(self, past: np.ndarray, goals: np.ndarray | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """The K futures (M, K, pred_len, 2) and the most-likely future (M, pred_len, 2), metres, of the M agents
-        of one scene observed at past (M, obs_len, 2) metres; goals (M, K, 2) for goal variants, sample k steering
-        toward goal k. A model drawing from its prior gets the standard normal draws the torch path makes with
-        `seed`, so both give the same futures."""
+        of one scene observed at past (M, obs_len, 2) metres. Goal variants: goals (M, K, 2), sample k steering
+        toward goal k (model.onnx), or (M, 2), each agent's known goal for all K samples (model_one_goal.onnx),
+        as `Model.predict` takes them. A model drawing from its prior gets the standard normal draws the torch
+        path makes with `seed`, so both give the same futures."""
         past = np.asarray(past, np.float32)[None]
         mask = np.ones(past.shape[:2], bool)
-        groups = "group" in self.manifest["inputs"]  # as the torch path: DBSCAN only for a variant that reads groups
+        known = goals is not None and np.ndim(goals) == 2
+        session, described = (
+            (self.one_goal_session, self.manifest["one_goal"]) if known else (self.session, self.manifest)
+        )
+        inputs = described["inputs"]
+        groups = "group" in inputs  # as the torch path: DBSCAN only for a variant that reads groups
         speed0, group = desired_speed_and_groups(past, mask, self.forces_config, self.step_s, groups)
         values = {"past": past, "agent_mask": mask, "speed0": speed0.astype(np.float32), "group": group}
-        if goals is not None:
+        if known:
+            values["goal"] = np.asarray(goals, np.float32)[None]
+        elif goals is not None:
             values["goals"] = np.asarray(goals, np.float32).transpose(1, 0, 2)[None]
-        if "noise" in self.manifest["inputs"]:
+        if "noise" in inputs:
             shape = (self.k, past.shape[1], int(self.manifest["z_dim"]))  # the torch path's (K windows, A, Z)
             values["noise"] = torch.randn(shape, generator=generator(seed, self.device)).numpy()[None]
-        futures, most_likely = self.session.run(None, {name: values[name] for name in self.manifest["inputs"]})
+        futures, most_likely = session.run(None, {name: values[name] for name in inputs})
         return futures[0].transpose(1, 0, 2, 3), most_likely[0]
+
+
+def _check_graph(where: Path, manifest: dict[str, Any], described: Any, prefix: str) -> None:
+    """One graph's block of the manifest (`export._graph_manifest`): its inputs those of its variant and codes."""
+    if not isinstance(described.get("inputs"), dict):
+        raise InputError(f"{where}: {prefix}inputs: expected the graph's inputs")
+    expected = input_names(manifest["variant"], str(described.get("codes")), one_goal=bool(prefix))
+    if "noise" in expected and not isinstance(manifest.get("z_dim"), int):
+        raise InputError(f"{where}: z_dim: expected the codes' size (a whole number) for the noise input")
+    if list(described["inputs"]) != expected:
+        raise InputError(f"{where}: {prefix}inputs {list(described['inputs'])}, expected {expected} for its variant")
+    if list(described.get("outputs", {})) != ["futures", "most_likely"]:
+        raise InputError(
+            f"{where}: {prefix}outputs: expected futures and most_likely (an earlier fftool's export: export again)"
+        )
 
 
 def _session(path: Path, threads: int | None) -> Any:

@@ -175,14 +175,15 @@ class OnlinePredictor:
         scene, one call of its graph; the same goals as the torch path (passed first, else the goal sampler's K)."""
         model, k = self.model, self.k
         assert isinstance(model, ExportedModel)
-        if reads_goal(model.variant):
-            chosen, _ = goals_per_sample(
-                model.variant, labels, past, goals, self.goal_sampler, k=k, seed=self.seed, pred_len=model.pred_len,
-                device=model.device,
-            )  # fmt: skip
-        else:
-            chosen = np.repeat(past[:, None, -1], k, 1)
-        futures, most_likely = model.draw(past, chosen if reads_goal(model.variant) else None, self.seed)
+        if not reads_goal(model.variant):
+            futures, most_likely = model.draw(past, None, self.seed)
+            return Drawn(np.repeat(past[:, None, -1], k, 1), futures, most_likely)
+        chosen, all_passed = goals_per_sample(
+            model.variant, labels, past, goals, self.goal_sampler, k=k, seed=self.seed, pred_len=model.pred_len,
+            device=model.device,
+        )  # fmt: skip
+        # every agent's goal known: the graph for one goal per agent, as the torch path decodes known goals
+        futures, most_likely = model.draw(past, chosen[:, 0] if all_passed else chosen, self.seed)
         return Drawn(chosen, futures, most_likely)
 
     def _checked(self, time_s: object, detections: object) -> tuple[np.ndarray, np.ndarray]:

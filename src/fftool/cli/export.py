@@ -24,7 +24,7 @@ def export(
             "or a CVAE's (with --dlow)."
         ),
     ],
-    out: Annotated[Path, typer.Option("--out", file_okay=False, help="Folder for model.onnx and manifest.json.")],
+    out: Annotated[Path, typer.Option("--out", file_okay=False, help="Folder for the graphs and manifest.json.")],
     dlow: Annotated[
         str | None, typer.Option("--dlow", help="The DLow sampler over that CVAE (dlow/…), for an artifact id.")
     ] = None,
@@ -40,11 +40,12 @@ def export(
 ) -> None:
     """Export a CVAE to ONNX with how it gets its K codes (a DLow sampler, the prior's mean, or prior draws whose
     standard normal noise is an input), a goal variant's goal U-Net beside it, and a manifest of their inputs,
-    units and where they came from. The graph gives the K futures and the most-likely future; it is
-    deterministic: goals, desired speeds, groups and any random draws are inputs computed by the host."""
+    units and where they came from. The graph gives the K futures and the most-likely future; a goal variant gets
+    a second graph for one known goal per agent (model_one_goal.onnx). Graphs are deterministic: goals, desired
+    speeds, groups and any random draws are inputs computed by the host."""
     from fftool import zoo
     from fftool.api import load, load_goal_sampler
-    from fftool.export import EXPORT, GOAL_ONNX_FILE, ONNX_FILE
+    from fftool.export import EXPORT, GOAL_ONNX_FILE, ONE_GOAL_ONNX_FILE, ONNX_FILE
     from fftool.export import export as export_onnx
     from fftool.outputs import check_output
     from fftool.ui import log, progress
@@ -59,7 +60,7 @@ def export(
     with progress() as bar:
         bar.add_task("export to ONNX (minutes: the 12 decoding steps are unrolled)", total=None)
         done = export_onnx(chosen, out, source, goals)
-    files = [name for name in (ONNX_FILE, GOAL_ONNX_FILE) if (done.folder / name).is_file()]
+    files = [name for name in (ONNX_FILE, ONE_GOAL_ONNX_FILE, GOAL_ONNX_FILE) if (done.folder / name).is_file()]
     size = sum((done.folder / name).stat().st_size for name in files) / 1e6
     log(f"wrote {', '.join(files)} ({size:.1f} MB) and manifest.json to {done.folder}: {done.manifest['variant']}, "
         f"K = {done.manifest['k']}, inputs {', '.join(done.manifest['inputs'])}")  # fmt: skip
