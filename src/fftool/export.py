@@ -90,7 +90,9 @@ class _Graph(torch.nn.Module):
         super().__init__()
         self.net, self.sampler = model.trained.model, model.sampler
         k = model.trained.config.k if model.sampler is None else model.sampler.k
-        self.predictor = model.predictor(k, 0, protocol_of(model.variant, one_goal))
+        protocol = protocol_of(model.variant, one_goal)
+        self.one_goal, self.codes = one_goal, codes_of(model, protocol)
+        self.predictor = model.predictor(k, 0, protocol)
         self.variant, self.obs_len, self.pred_len, self.k = model.variant, model.obs_len, model.pred_len, k
         self.z_dim = model.trained.config.z_dim
 
@@ -182,7 +184,8 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
     check_output(out, "--out", EXPORT)
     if goal_sampler is not None and not reads_goal(model.variant):
         raise UsageError(f"the {model.variant} variant reads no goal: it is exported without a goal U-Net")
-    graph = _Graph(model).eval()
+    graphs = [_Graph(model).eval()] + ([_Graph(model, one_goal=True).eval()] if reads_goal(model.variant) else [])
+    graph = graphs[0]
     manifest = {
         "fftool": __version__,
         "format": f"ONNX, opset {OPSET}",
@@ -193,41 +196,38 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
         "pred_len": model.pred_len,
         "step_s": model.step_s,
         "forces": model.trained.forces_config.model_dump() if model.trained.forces_config else None,
-        **_graph_manifest(model, graph.k, graph.z_dim, one_goal=False),
+        **_graph_manifest(graph),
         "source": source,
     }
-    if reads_goal(model.variant):
-        manifest["one_goal"] = {"file": ONE_GOAL_ONNX_FILE, **_graph_manifest(model, graph.k, graph.z_dim, True)}
+    for one_goal in graphs[1:]:
+        manifest["one_goal"] = {"file": ONE_GOAL_ONNX_FILE, **_graph_manifest(one_goal)}
     if goal_sampler is not None:
         manifest["goal_unet"] = _goal_manifest(goal_sampler, model.obs_len)
     with replacing_folder(out) as partial, torch.no_grad():
-        _export_graph(graph, manifest, partial / ONNX_FILE)
-        if reads_goal(model.variant):
-            _export_graph(_Graph(model, one_goal=True).eval(), manifest["one_goal"], partial / ONE_GOAL_ONNX_FILE)
+        for each in graphs:
+            _export_graph(each, partial / (ONE_GOAL_ONNX_FILE if each.one_goal else ONNX_FILE))
         if goal_sampler is not None:
             _export_goal_unet(goal_sampler, model.obs_len, model.pred_len, partial / GOAL_ONNX_FILE)
         (partial / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1) + "\n")
     return Exported(out, manifest)
 
 
-def _graph_manifest(model: Any, k: int, z_dim: int, one_goal: bool) -> dict[str, Any]:
+def _graph_manifest(graph: _Graph) -> dict[str, Any]:
     """What one graph takes and gives: how it gets its codes, its inputs and outputs."""
-    codes = codes_of(model, protocol_of(model.variant, one_goal))
-    names = input_names(model.variant, codes, one_goal)
+    names = input_names(graph.variant, graph.codes, graph.one_goal)
     return {
-        "codes": codes,
-        "inputs": {name: _describe(name, model.obs_len, k, z_dim) for name in names},
+        "codes": graph.codes,
+        "inputs": {name: _describe(name, graph.obs_len, graph.k, graph.z_dim) for name in names},
         "outputs": {
-            "futures": f"(1, {k}, A, {model.pred_len}, 2) float32, world metres",
-            "most_likely": f"(1, A, {model.pred_len}, 2) float32, world metres, the prior's mean code toward goal 1",
+            "futures": f"(1, {graph.k}, A, {graph.pred_len}, 2) float32, world metres",
+            "most_likely": f"(1, A, {graph.pred_len}, 2) float32, world metres, the prior's mean code toward goal 1",
         },
     }
 
 
-def _export_graph(graph: _Graph, described: dict[str, Any], path: Path) -> None:
-    """One CVAE graph at `path`, its inputs as `described` (a `_graph_manifest`) names them, any agent count."""
-    one_goal = "goal" in described["inputs"]
-    example = example_inputs(graph.variant, described["codes"], graph.k, graph.obs_len, graph.z_dim, one_goal)
+def _export_graph(graph: _Graph, path: Path) -> None:
+    """One CVAE graph at `path`, any agent count."""
+    example = example_inputs(graph.variant, graph.codes, graph.k, graph.obs_len, graph.z_dim, graph.one_goal)
     agents = torch.export.Dim("A", max=MAX_AGENTS)
     dims = {"past": {1: agents}, "agent_mask": {1: agents}, "goals": {2: agents}, "goal": {1: agents}}
     dims |= {"speed0": {1: agents}, "group": {1: agents}, "noise": {2: agents}}

@@ -67,13 +67,9 @@ class ExportedModel:
             raise InputError(f"{where}: missing {missing}")
         if manifest["variant"] not in SPECS:
             raise InputError(f"{where}: variant {manifest['variant']!r} is none of {sorted(SPECS)}")
-        _check_graph(where, manifest, manifest, "")
+        _check_graph(where, manifest, one_goal=False)
         if SPECS[manifest["variant"]].reads_goal:
-            if not isinstance(manifest.get("one_goal"), dict):
-                raise InputError(
-                    f"{where}: one_goal: expected the known-goal graph (an earlier fftool's export: export again)"
-                )
-            _check_graph(where, manifest, manifest["one_goal"], "one_goal.")
+            _check_graph(where, manifest, one_goal=True)
         try:
             forces = ForcesConfig.model_validate(manifest["forces"]) if manifest.get("forces") else None
         except ValidationError as exc:
@@ -137,11 +133,15 @@ class ExportedModel:
         return futures[0].transpose(1, 0, 2, 3), most_likely[0]
 
 
-def _check_graph(where: Path, manifest: dict[str, Any], described: Any, prefix: str) -> None:
-    """One graph's block of the manifest (`export._graph_manifest`): its inputs those of its variant and codes."""
+def _check_graph(where: Path, manifest: dict[str, Any], one_goal: bool) -> None:
+    """One graph's block of the manifest (`export._graph_manifest`; a goal variant's known-goal graph under
+    `one_goal`): its inputs those of its variant and codes."""
+    described, prefix = (manifest.get("one_goal"), "one_goal.") if one_goal else (manifest, "")
+    if not isinstance(described, dict):
+        raise InputError(f"{where}: one_goal: expected the known-goal graph (an earlier fftool's export: export again)")
     if not isinstance(described.get("inputs"), dict):
         raise InputError(f"{where}: {prefix}inputs: expected the graph's inputs")
-    expected = input_names(manifest["variant"], str(described.get("codes")), one_goal=bool(prefix))
+    expected = input_names(manifest["variant"], str(described.get("codes")), one_goal)
     if "noise" in expected and not isinstance(manifest.get("z_dim"), int):
         raise InputError(f"{where}: z_dim: expected the codes' size (a whole number) for the noise input")
     if list(described["inputs"]) != expected:
