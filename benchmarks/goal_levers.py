@@ -88,6 +88,9 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "map_dropout_0.5": (["goal.map_dropout=0.5"], []),
     "map_dropout_0.25": (["goal.map_dropout=0.25"], []),
     "map_dropout_1": (["goal.map_dropout=1"], []),
+    # Against "profile" (48 epochs), on a held-out place with the best epoch chosen on the val part: a shorter
+    # cosine (with "steps_4x", 16 epochs).
+    "epochs_8": (["goal.epochs=8"], []),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -113,15 +116,20 @@ def _patch(name: str) -> None:
         raise SystemExit(f"unknown patch {name!r}")
 
 
-def _hold_out(place: str) -> None:
+def _hold_out(place: str, select_in_scene: bool = False) -> None:
     """Make the goal stage (and this script's scoring) read B's train part without `place`, and `place`'s windows
-    of B's train and val parts as the validation part."""
+    of B's train and val parts as the validation part. With `select_in_scene`, the goal stage chooses its best
+    epoch as the shipped modules do, on B's val part (without `place`'s windows), and only the scoring reads
+    `place`."""
     original, sources = batches.load_agent_windows, PLACES[place]
+
+    def without(windows: Artifact, benchmark: str, part: str, stride: int) -> AgentWindows:
+        data = original(windows, benchmark, part, stride)
+        return data.subset(np.flatnonzero(~np.isin(data.source, sources)))
 
     def load(windows: Artifact, benchmark: str, part: str, stride: int = 1) -> AgentWindows:
         if part == "train":
-            train = original(windows, benchmark, "train", stride)
-            return train.subset(np.flatnonzero(~np.isin(train.source, sources)))
+            return without(windows, benchmark, "train", stride)
         if part != "val":
             raise SystemExit(f"--holdout reads no {part} part")
         held = [original(windows, benchmark, p, stride) for p in ("train", "val")]
@@ -129,9 +137,12 @@ def _hold_out(place: str) -> None:
         fields = ("xy", "source", "first_step", "window_id", "ped_id", "row")
         return AgentWindows(*(np.concatenate([getattr(w, f) for w in held]) for f in fields))
 
+    def load_in_scene(windows: Artifact, benchmark: str, part: str, stride: int = 1) -> AgentWindows:
+        return without(windows, benchmark, part, stride)
+
     import fftool.stages.goal as goal_stage
 
-    goal_stage.load_agent_windows = load
+    goal_stage.load_agent_windows = load_in_scene if select_in_scene else load
     globals()["load_agent_windows"] = load
 
 
@@ -156,13 +167,16 @@ def measure(
     holdout: bool = False,
     step_scale: float = 1.0,
     blank_maps: bool = False,
+    select_in_scene: bool = False,
+    curves: Path | None = None,
 ) -> list[dict[str, object]]:
     overrides, patches = LEVERS[lever]
     for name in patches:
         _patch(name)
     if holdout:  # its own store: the goal artifact's fingerprint does not know which windows it read
-        _hold_out(HOLDOUT[benchmark])
-    store = ArtifactStore(root / (f"{lever}@holdout-{HOLDOUT[benchmark]}" if holdout else lever))
+        _hold_out(HOLDOUT[benchmark], select_in_scene)
+    where = f"@holdout-{HOLDOUT[benchmark]}" + ("-in-scene" if select_in_scene else "") if holdout else ""
+    store = ArtifactStore(root / f"{lever}{where}")
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":
@@ -177,6 +191,8 @@ def measure(
         built = pipeline.run(cfg, store, ["goal"], runtime=runtime, benchmark=benchmark)
         goal, windows, maps = built["goal"], built["windows"], built["maps"]
     seconds = time.perf_counter() - started
+    if curves:
+        _append(curves, _curve_rows(goal, lever, benchmark, _validation(benchmark, holdout, 1, select_in_scene)))
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
     cv_goals = 0
     if rescore:  # goals.cv_goals=m is no profile key: the last m of the K goals become constant-velocity goals
@@ -197,7 +213,7 @@ def measure(
             {
                 "lever": _label(lever, [*rescore, *(["maps=blank"] if blank_maps else [])], step_scale),
                 "benchmark": benchmark,
-                "validation": _validation(benchmark, holdout, step_scale),
+                "validation": _validation(benchmark, holdout, step_scale, select_in_scene),
                 "mode_radius_cells": radius,
                 "val_goal_fde@20_m": round(fde_k, 4),
                 "val_goal_fde@1_m": round(fde_1, 4),
@@ -219,10 +235,29 @@ def _label(lever: str, rescore: list[str], step_scale: float) -> str:
     return " ".join([lever, *rescore, *([f"step_scale={step_scale:.4g}"] if step_scale != 1 else [])])
 
 
-def _validation(benchmark: str, holdout: bool, step_scale: float) -> str:
-    """The CSV's validation column: which windows were scored."""
+def _validation(benchmark: str, holdout: bool, step_scale: float, select_in_scene: bool = False) -> str:
+    """The CSV's validation column: which windows were scored (and, if not those, which chose the best epoch)."""
     where = f"held-out {HOLDOUT[benchmark]}" if holdout else "val part"
+    where += " (best epoch by the val part)" if select_in_scene else ""
     return where + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else "")
+
+
+def _curve_rows(goal: Artifact, lever: str, benchmark: str, validation: str) -> list[dict[str, object]]:
+    """The goal U-Net's training log, one row per epoch: the validation the trainer chose its best epoch on."""
+    with (goal.path / "log.csv").open(newline="") as handle:
+        log = list(csv.DictReader(handle))
+    return [
+        {
+            "lever": lever,
+            "benchmark": benchmark,
+            "validation": validation,
+            "epoch": int(row["epoch"]),
+            "seconds": round(float(row["seconds"]), 2),
+            "val_subset_goal_fde@20_m": round(float(row["val_goal_fde@20_m"]), 4),
+            "val_subset_goal_fde@1_m": round(float(row["val_goal_fde@1_m"]), 4),
+        }
+        for row in log
+    ]
 
 
 def _cv_goals(
@@ -385,9 +420,15 @@ def main() -> None:
     parser.add_argument(
         "--blank-maps", action="store_true", help="score trained models with every map channel 0 (as on a user's data)"
     )
+    parser.add_argument(
+        "--select-in-scene",
+        action="store_true",
+        help="with --holdout: choose the best epoch on the val part (as shipped), score on the held-out place",
+    )
+    parser.add_argument("--curves", type=Path, help="append the trained model's per-epoch validation to this CSV")
     args = parser.parse_args()
-    if args.step_scale != 1 and not args.holdout:
-        parser.error("--step-scale resamples a held-out place's tracks: it needs --holdout")
+    if (args.step_scale != 1 or args.select_in_scene) and not args.holdout:
+        parser.error("--step-scale and --select-in-scene read a held-out place: they need --holdout")
     assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
@@ -402,6 +443,8 @@ def main() -> None:
             args.holdout,
             args.step_scale,
             args.blank_maps,
+            args.select_in_scene,
+            args.curves,
         )
         _append(args.out, rows)
         for row in rows:
