@@ -192,7 +192,8 @@ def measure(
         goal, windows, maps = built["goal"], built["windows"], built["maps"]
     seconds = time.perf_counter() - started
     if curves:
-        _append(curves, _curve_rows(goal, lever, benchmark, _validation(benchmark, holdout, 1, select_in_scene)))
+        validation = _validation(benchmark, holdout, 1, select_in_scene)
+        _append(curves, _curve_rows(goal, _label(lever, [], 1, select_in_scene), benchmark, validation))
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
     cv_goals = 0
     if rescore:  # goals.cv_goals=m is no profile key: the last m of the K goals become constant-velocity goals
@@ -211,7 +212,7 @@ def measure(
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
             {
-                "lever": _label(lever, [*rescore, *(["maps=blank"] if blank_maps else [])], step_scale),
+                "lever": _label(lever, [*rescore, *(["maps=blank"] * blank_maps)], step_scale, select_in_scene),
                 "benchmark": benchmark,
                 "validation": _validation(benchmark, holdout, step_scale, select_in_scene),
                 "mode_radius_cells": radius,
@@ -230,9 +231,10 @@ def measure(
     return rows
 
 
-def _label(lever: str, rescore: list[str], step_scale: float) -> str:
-    """The CSV's lever column: the lever, then how its models were rescored."""
-    return " ".join([lever, *rescore, *([f"step_scale={step_scale:.4g}"] if step_scale != 1 else [])])
+def _label(lever: str, rescore: list[str], step_scale: float, select_in_scene: bool = False) -> str:
+    """The CSV's lever column: the lever, then how its models were rescored (and chosen)."""
+    scaled = [f"step_scale={step_scale:.4g}"] if step_scale != 1 else []
+    return " ".join([lever, *rescore, *scaled, *(["best_epoch=val_part"] if select_in_scene else [])])
 
 
 def _validation(benchmark: str, holdout: bool, step_scale: float, select_in_scene: bool = False) -> str:
