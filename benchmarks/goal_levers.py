@@ -12,6 +12,10 @@ goal U-Net trains on B's train part without the windows of the place HOLDOUT[B] 
 its best epoch on that place's windows (B's train and val parts), and is scored on all of them. That is the
 leave-one-out situation the test meets (a scene the module never saw), measured without a test window.
 
+With `--holdout --select-in-scene`, the goal U-Net still trains without that place but chooses its best epoch as the
+shipped modules do, on B's val part (without the place's windows); only the scoring reads the place. `--curves FILE`
+appends the trained model's per-epoch validation (what chose its best epoch) to FILE.
+
 With `--blank-maps`, a lever's trained models are scored with every map channel zero, as `fftool predict` and the
 API run them on a user's tracks (lever "shipped": the shipped goal U-Nets, installed into its store first).
 
@@ -123,7 +127,9 @@ def _hold_out(place: str, select_in_scene: bool = False) -> None:
     `place`."""
     original, sources = batches.load_agent_windows, PLACES[place]
 
-    def without(windows: Artifact, benchmark: str, part: str, stride: int) -> AgentWindows:
+    def without(windows: Artifact, benchmark: str, part: str, stride: int = 1) -> AgentWindows:
+        if part == "test":
+            raise SystemExit("--holdout reads no test part")
         data = original(windows, benchmark, part, stride)
         return data.subset(np.flatnonzero(~np.isin(data.source, sources)))
 
@@ -137,12 +143,9 @@ def _hold_out(place: str, select_in_scene: bool = False) -> None:
         fields = ("xy", "source", "first_step", "window_id", "ped_id", "row")
         return AgentWindows(*(np.concatenate([getattr(w, f) for w in held]) for f in fields))
 
-    def load_in_scene(windows: Artifact, benchmark: str, part: str, stride: int = 1) -> AgentWindows:
-        return without(windows, benchmark, part, stride)
-
     import fftool.stages.goal as goal_stage
 
-    goal_stage.load_agent_windows = load_in_scene if select_in_scene else load
+    goal_stage.load_agent_windows = without if select_in_scene else load
     globals()["load_agent_windows"] = load
 
 

@@ -68,3 +68,19 @@ def test_tracks_resampled_at_another_step_interpolate_within_each_track(
         points[int(t)] if t == int(t) else (points[int(t)] + points[int(t) + 1]) / 2 for t in np.arange(20) * 1.5
     ]
     np.testing.assert_allclose(resampled.xy[0], np.array(expected))  # the last at 28.5: between steps 28 and 29
+
+
+def test_select_in_scene_chooses_on_the_val_part_without_the_place_and_scores_the_place(
+    levers: ModuleType, built_store: ArtifactStore
+) -> None:
+    windows = built_store.list("windows")[0]
+    levers._hold_out("hotel", select_in_scene=True)
+    parts = {part: batches.load_agent_windows(windows, "eth", part) for part in ("train", "val")}
+    for part, data in parts.items():  # what the goal stage trains and chooses its best epoch on
+        chosen = goal_stage.load_agent_windows(windows, "eth", part)
+        assert sorted(chosen.row) == sorted(data.row[data.source != "biwi_hotel"]) and len(chosen) > 0
+    scored = levers.load_agent_windows(windows, "eth", "val")  # what the script scores: the place alone
+    assert set(scored.source) == {"biwi_hotel"}
+    for load in (goal_stage.load_agent_windows, levers.load_agent_windows):
+        with pytest.raises(SystemExit, match="no test part"):
+            load(windows, "eth", "test")
