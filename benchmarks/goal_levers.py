@@ -178,8 +178,10 @@ def measure(
         _patch(name)
     if holdout:  # its own store: the goal artifact's fingerprint does not know which windows it read
         _hold_out(HOLDOUT[benchmark], select_in_scene)
-    where = f"@holdout-{HOLDOUT[benchmark]}" + ("-in-scene" if select_in_scene else "") if holdout else ""
-    store = ArtifactStore(root / f"{lever}{where}")
+    store_name = lever
+    if holdout:
+        store_name += f"@holdout-{HOLDOUT[benchmark]}" + ("-in-scene" if select_in_scene else "")
+    store = ArtifactStore(root / store_name)
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":

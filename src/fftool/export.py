@@ -199,8 +199,8 @@ def export(model: Any, out: Path, source: dict[str, str], goal_sampler: Any = No
         **_graph_manifest(graph),
         "source": source,
     }
-    for one_goal in graphs[1:]:
-        manifest["one_goal"] = {"file": ONE_GOAL_ONNX_FILE, **_graph_manifest(one_goal)}
+    if len(graphs) > 1:
+        manifest["one_goal"] = {"file": ONE_GOAL_ONNX_FILE, **_graph_manifest(graphs[1])}
     if goal_sampler is not None:
         manifest["goal_unet"] = _goal_manifest(goal_sampler, model.obs_len)
     with replacing_folder(out) as partial, torch.no_grad():
