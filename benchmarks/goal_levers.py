@@ -16,6 +16,10 @@ With `--holdout --select-in-scene`, the goal U-Net still trains without that pla
 shipped modules do, on B's val part (without the place's windows); only the scoring reads the place. `--curves FILE`
 appends the trained model's per-epoch validation (what chose its best epoch) to FILE.
 
+With `--ensemble L2 --ensemble L3`, the lever's trained models are scored together with those of levers L2 and L3
+(trained first, with the same --holdout options): each cell's probability is the mean of the members', then TTST
+samples it as it samples one module's.
+
 With `--blank-maps`, a lever's trained models are scored with every map channel zero, as `fftool predict` and the
 API run them on a user's tracks (lever "shipped": the shipped goal U-Nets, installed into its store first).
 
@@ -95,6 +99,9 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     # Against "profile" (48 epochs), on a held-out place with the best epoch chosen on the val part: a shorter
     # cosine (with "steps_4x", 16 epochs).
     "epochs_8": (["goal.epochs=8"], []),
+    # Members of an ensemble with "epochs_8" (`--ensemble`): the same recipe from other seeds.
+    "epochs_8_seed1": (["goal.epochs=8", "goal.seed=1"], []),
+    "epochs_8_seed2": (["goal.epochs=8", "goal.seed=2"], []),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -172,23 +179,21 @@ def measure(
     blank_maps: bool = False,
     select_in_scene: bool = False,
     curves: Path | None = None,
+    ensemble: tuple[str, ...] = (),
 ) -> list[dict[str, object]]:
     overrides, patches = LEVERS[lever]
     for name in patches:
         _patch(name)
     if holdout:  # its own store: the goal artifact's fingerprint does not know which windows it read
         _hold_out(HOLDOUT[benchmark], select_in_scene)
-    store_name = lever
-    if holdout:
-        store_name += f"@holdout-{HOLDOUT[benchmark]}" + ("-in-scene" if select_in_scene else "")
-    store = ArtifactStore(root / store_name)
+    store = ArtifactStore(root / _store_name(lever, benchmark, holdout, select_in_scene))
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":
         cfg = load_config(profile, extra)
         windows = pipeline.run(cfg, store, ["windows"], runtime=runtime)["windows"]
         return _constant_velocity_rows(windows, benchmark, cfg.goals, holdout, step_scale)
-    if rescore or step_scale != 1 or blank_maps:  # the lever's models as trained, scored another way
+    if rescore or step_scale != 1 or blank_maps or ensemble:  # the lever's models as trained, scored another way
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
     else:
@@ -200,6 +205,11 @@ def measure(
         validation = _validation(benchmark, holdout, 1, select_in_scene)
         _append(curves, _curve_rows(goal, _label(lever, [], 1, select_in_scene), benchmark, validation))
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
+    if ensemble:
+        stores = [ArtifactStore(root / _store_name(other, benchmark, holdout, select_in_scene)) for other in ensemble]
+        model = ProbabilityMean(
+            [model, *(goal_model.load_model(_trained(other, benchmark), device)[0] for other in stores)]
+        )
     cv_goals = 0
     if rescore:  # goals.cv_goals=m is no profile key: the last m of the K goals become constant-velocity goals
         values = _values(rescore, "goals")
@@ -213,11 +223,14 @@ def measure(
         val = _resampled(windows, val, step_scale)
     obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
     fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals)
+    label = _label(
+        "+".join([lever, *ensemble]), [*rescore, *(["maps=blank"] * blank_maps)], step_scale, select_in_scene
+    )
     rows = []
     for radius, (fde_k, fde_1) in fde.items():
         rows.append(
             {
-                "lever": _label(lever, [*rescore, *(["maps=blank"] * blank_maps)], step_scale, select_in_scene),
+                "lever": label,
                 "benchmark": benchmark,
                 "validation": _validation(benchmark, holdout, step_scale, select_in_scene),
                 "mode_radius_cells": radius,
@@ -234,6 +247,29 @@ def measure(
             }
         )
     return rows
+
+
+def _store_name(lever: str, benchmark: str, holdout: bool, select_in_scene: bool) -> str:
+    """A lever's own artifact root: with --holdout, the goal artifact's fingerprint does not know which windows it
+    read, so each held-out place (and selection) gets its own."""
+    if not holdout:
+        return lever
+    return f"{lever}@holdout-{HOLDOUT[benchmark]}" + ("-in-scene" if select_in_scene else "")
+
+
+class ProbabilityMean(torch.nn.Module):
+    """Goal U-Nets as one: the logits of the mean of their per-cell probabilities, computed in log space
+    (log p = logsumexp of the members' log-sigmoids − log n), so no probability is clipped."""
+
+    def __init__(self, members: list[torch.nn.Module]) -> None:
+        super().__init__()
+        self.members = torch.nn.ModuleList(members)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        logits = torch.stack([member(x) for member in self.members])
+        log_p = torch.logsumexp(torch.nn.functional.logsigmoid(logits), 0)
+        log_not_p = torch.logsumexp(torch.nn.functional.logsigmoid(-logits), 0)
+        return log_p - log_not_p
 
 
 def _label(lever: str, rescore: list[str], step_scale: float, select_in_scene: bool = False) -> str:
@@ -433,6 +469,9 @@ def main() -> None:
         help="with --holdout: choose the best epoch on the val part (as shipped), score on the held-out place",
     )
     parser.add_argument("--curves", type=Path, help="append the trained model's per-epoch validation to this CSV")
+    parser.add_argument(
+        "--ensemble", action="append", default=[], choices=list(LEVERS), help="score with this lever's models too"
+    )
     args = parser.parse_args()
     if (args.step_scale != 1 or args.select_in_scene) and not args.holdout:
         parser.error("--step-scale and --select-in-scene read a held-out place: they need --holdout")
@@ -452,6 +491,7 @@ def main() -> None:
             args.blank_maps,
             args.select_in_scene,
             args.curves,
+            tuple(args.ensemble),
         )
         _append(args.out, rows)
         for row in rows:

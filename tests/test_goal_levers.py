@@ -10,6 +10,7 @@ from types import ModuleType
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+import torch
 
 from fftool.artifacts.schema import TRACKS_FILE
 from fftool.artifacts.store import ArtifactStore
@@ -84,3 +85,18 @@ def test_select_in_scene_chooses_on_the_val_part_without_the_place_and_scores_th
     for load in (goal_stage.load_agent_windows, levers.load_agent_windows):
         with pytest.raises(SystemExit, match="no test part"):
             load(windows, "eth", "test")
+
+
+class _Shifted(torch.nn.Module):
+    """A stand-in goal U-Net whose logits are 2 − its input."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return 2.0 - x
+
+
+def test_an_ensemble_samples_the_mean_of_its_members_probabilities(levers: ModuleType) -> None:
+    x = torch.linspace(-30, 30, 13).reshape(1, 1, 13, 1)
+    assert torch.allclose(levers.ProbabilityMean([torch.nn.Identity()])(x), x, atol=1e-5)  # one member: itself
+    both = levers.ProbabilityMean([torch.nn.Identity(), _Shifted()])(x)
+    assert torch.allclose(torch.sigmoid(both), (torch.sigmoid(x) + torch.sigmoid(2.0 - x)) / 2, atol=1e-6)
+    assert torch.isfinite(both).all()  # ±30 logits: no probability clipped to 0 or 1
