@@ -191,8 +191,8 @@ def levers_table(levers_csv: Path | str, radius: int, names: dict[str, str]) -> 
     return _markdown(["lever (validation goal-FDE@20 / FDE@1, m)", *BENCHMARKS, "average"], rows)
 
 
-def lever_average(levers_csv: Path | str, lever: str, radius: int = 2) -> float:
-    """A lever's five-benchmark average validation goal-FDE@20 (m), for prose that quotes it."""
+def lever_average(levers_csv: Path | str, lever: str, radius: int) -> float:
+    """A lever's five-benchmark average validation goal-FDE@20 (m) with the mode over `radius` cells, for prose."""
     frame = pd.read_csv(levers_csv)
     rows = frame[(frame["lever"] == lever) & (frame["mode_radius_cells"] == radius)]
     rows = rows.drop_duplicates("benchmark", keep="last").set_index("benchmark")
