@@ -258,8 +258,8 @@ def _store_name(lever: str, benchmark: str, holdout: bool, select_in_scene: bool
 
 
 class ProbabilityMean(torch.nn.Module):
-    """Goal U-Nets as one: the logits of the mean of their per-cell probabilities, computed in log space
-    (log p = logsumexp of the members' log-sigmoids − log n), so no probability is clipped."""
+    """Goal U-Nets as one: the logits of the mean of their per-cell probabilities, log p − log(1 − p), each a
+    logsumexp of the members' log-sigmoids (the − log n of both cancels), so no probability is clipped."""
 
     def __init__(self, members: list[torch.nn.Module]) -> None:
         super().__init__()

@@ -175,20 +175,33 @@ def zoo_table(profile: str) -> str:
     return _markdown(header, rows, numeric_from=3) + f"\n{zoo_caption(models)}.\n"
 
 
-def levers_table(levers_csv: Path | str, radius: int, names: dict[str, str]) -> str:
+_MODE_NAMES = {0: "argmax", 1: "3 × 3 cells", 2: "5 × 5 cells"}
+
+
+def levers_table(
+    levers_csv: Path | str,
+    radius: int | Sequence[int],
+    names: dict[str, str],
+    benchmarks: Sequence[str] = BENCHMARKS,
+) -> str:
     """Validation goal-FDE@20 / FDE@1 per benchmark and their average for each lever of `names` (lever ->
-    label, in that order) with the mode refined over `radius` cells, from benchmarks/goal_levers.py's CSV."""
-    frame = pd.read_csv(levers_csv)
-    frame = frame[frame["mode_radius_cells"] == radius].drop_duplicates(["lever", "benchmark"], keep="last")
+    label, in that order) with the mode refined over `radius` cells, from benchmarks/goal_levers.py's CSV.
+    Several radii give each lever one row per mode, named in a column of their own."""
+    radii = [radius] if isinstance(radius, int) else list(radius)
+    frame = pd.read_csv(levers_csv).drop_duplicates(["lever", "benchmark", "mode_radius_cells"], keep="last")
     rows = []
     for lever, label in names.items():
-        part = frame[frame["lever"] == lever].set_index("benchmark")
-        cells = [_pair(part.at[b, "val_goal_fde@20_m"], part.at[b, "val_goal_fde@1_m"]) if b in part.index else ""
-                 for b in BENCHMARKS]  # fmt: skip
-        full = len(part) == len(BENCHMARKS)
-        mean = _pair(part["val_goal_fde@20_m"].mean(), part["val_goal_fde@1_m"].mean()) if full else ""
-        rows.append([label, *cells, f"**{mean}**" if mean else ""])
-    return _markdown(["lever (validation goal-FDE@20 / FDE@1, m)", *BENCHMARKS, "average"], rows)
+        for r in radii:
+            part = frame[(frame["lever"] == lever) & (frame["mode_radius_cells"] == r)].set_index("benchmark")
+            part = part[part.index.isin(benchmarks)]
+            cells = [_pair(part.at[b, "val_goal_fde@20_m"], part.at[b, "val_goal_fde@1_m"]) if b in part.index else ""
+                     for b in benchmarks]  # fmt: skip
+            full = len(part) == len(benchmarks)
+            mean = _pair(part["val_goal_fde@20_m"].mean(), part["val_goal_fde@1_m"].mean()) if full else ""
+            rows.append([label, *([_MODE_NAMES[r]] if len(radii) > 1 else []), *cells, f"**{mean}**" if mean else ""])
+    modes = ["mode"] if len(radii) > 1 else []
+    return _markdown(["lever (validation goal-FDE@20 / FDE@1, m)", *modes, *benchmarks, "average"], rows,
+                     numeric_from=1 + len(modes))  # fmt: skip
 
 
 def lever_average(levers_csv: Path | str, lever: str, radius: int) -> float:
