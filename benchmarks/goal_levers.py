@@ -51,7 +51,7 @@ from fftool.dataset import scenes
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.learning import batches, devices, goal_model, protocols
 from fftool.learning.batches import AgentWindows, load_agent_windows
-from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
+from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes, source_place
 from fftool.learning.training import generator
 from fftool.pipeline import Runtime
 from fftool.science import heatmaps
@@ -102,6 +102,11 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     # Members of an ensemble with "epochs_8" (`--ensemble`): the same recipe from other seeds.
     "epochs_8_seed1": (["goal.epochs=8", "goal.seed=1"], []),
     "epochs_8_seed2": (["goal.epochs=8", "goal.seed=2"], []),
+    "recipe_8_argmax": ([], []),  # the cpu recipe as shipped (8 epochs, best epoch under the argmax mode)
+    # Each epoch's windows drawn with replacement, a place's share of them ∝ its training windows^(1 − β), instead
+    # of the shares the files give (univ's square holds about 70 % of every other benchmark's training windows).
+    "place_balance_0.5": ([], ["place_balance_0.5"]),
+    "place_balance_1": ([], ["place_balance_1"]),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -123,8 +128,32 @@ def _patch(name: str) -> None:
         heatmaps.cells_to_world.__code__ = _corner_cells_to_world.__code__
     elif name == "uni_map":
         scenes.SOURCE_SCENE["uni_examples"] = "univ"
+    elif name.startswith("place_balance_"):
+        _balance_places(float(name.removeprefix("place_balance_")))
     else:
         raise SystemExit(f"unknown patch {name!r}")
+
+
+def _balance_places(beta: float) -> None:
+    """Make the goal stage draw each epoch's windows with replacement, window i with weight n_place(i)^(−β), so that
+    a place's share of the draws is ∝ n_place^(1 − β) (β = 0: the files' shares, β = 1: every place alike). A
+    place is `scene_prior.source_place` (zara's three files are one place; uni_examples is univ's square)."""
+    import fftool.stages.goal as goal_stage
+
+    original = goal_stage._trainer
+
+    def trainer(cfg, goals_cfg, benchmark, windows, maps, device):  # type: ignore[no-untyped-def]
+        made = original(cfg, goals_cfg, benchmark, windows, maps, device)
+        train = goal_stage.load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
+        places = np.array([source_place(source) or source for source in train.source])
+        _, inverse, counts = np.unique(places, return_inverse=True, return_counts=True)
+        weights = torch.as_tensor(counts[inverse].astype(np.float64) ** -beta)
+        shares = {str(p): round(float(weights[places == p].sum() / weights.sum()), 3) for p in np.unique(places)}
+        print(f"place shares of the draws (beta {beta}): {shares}", flush=True)
+        made._epoch_windows = lambda gen: torch.multinomial(weights, made.per_epoch, replacement=True, generator=gen)
+        return made
+
+    goal_stage._trainer = trainer
 
 
 def _hold_out(place: str, select_in_scene: bool = False) -> None:

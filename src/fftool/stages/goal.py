@@ -92,6 +92,10 @@ class _Trainer:
     def grad_clip(self) -> float:
         return self.cfg.grad_clip
 
+    def _epoch_windows(self, gen: torch.Generator) -> torch.Tensor:
+        """The training windows of an epoch: `per_epoch` of them in a random order, each at most once."""
+        return torch.randperm(len(self.train_xy), generator=gen)[: self.per_epoch]
+
     def steps(self, epoch: int) -> tuple[int, Iterator[Step]]:
         """`per_epoch` windows drawn by (seed, epoch).
 
@@ -99,7 +103,7 @@ class _Trainer:
         windows (`distributed.shard`), its loss scaled so that the averaged gradient is the global batch's."""
         cfg, device, batches = self.cfg, self.device, self._batches
         gen = generator(epoch_seed(cfg.seed, epoch), torch.device("cpu"))
-        order = torch.randperm(len(self.train_xy), generator=gen)[: self.per_epoch]
+        order = self._epoch_windows(gen)
 
         def each() -> Iterator[Step]:
             for b in range(batches):
