@@ -134,6 +134,12 @@ def _patch(name: str) -> None:
         raise SystemExit(f"unknown patch {name!r}")
 
 
+def place_weights(places: np.ndarray, beta: float) -> np.ndarray:
+    """Each window's draw weight n^(−β), n the windows of its place: a place's share of the draws is ∝ n^(1 − β)."""
+    _, inverse, counts = np.unique(places, return_inverse=True, return_counts=True)
+    return counts[inverse].astype(np.float64) ** -beta
+
+
 def _balance_places(beta: float) -> None:
     """Make the goal stage draw each epoch's windows with replacement, window i with weight n_place(i)^(−β), so that
     a place's share of the draws is ∝ n_place^(1 − β) (β = 0: the files' shares, β = 1: every place alike). A
@@ -146,8 +152,7 @@ def _balance_places(beta: float) -> None:
         made = original(cfg, goals_cfg, benchmark, windows, maps, device)
         train = goal_stage.load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
         places = np.array([source_place(source) or source for source in train.source])
-        _, inverse, counts = np.unique(places, return_inverse=True, return_counts=True)
-        weights = torch.as_tensor(counts[inverse].astype(np.float64) ** -beta)
+        weights = torch.as_tensor(place_weights(places, beta))
         shares = {str(p): round(float(weights[places == p].sum() / weights.sum()), 3) for p in np.unique(places)}
         print(f"place shares of the draws (beta {beta}): {shares}", flush=True)
         made._epoch_windows = lambda gen: torch.multinomial(weights, made.per_epoch, replacement=True, generator=gen)

@@ -100,3 +100,12 @@ def test_an_ensemble_samples_the_mean_of_its_members_probabilities(levers: Modul
     both = levers.ProbabilityMean([torch.nn.Identity(), _Shifted()])(x)
     assert torch.allclose(torch.sigmoid(both), (torch.sigmoid(x) + torch.sigmoid(2.0 - x)) / 2, atol=1e-6)
     assert torch.isfinite(both).all()  # ±30 logits: no probability clipped to 0 or 1
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5, 1.0])
+def test_a_place_s_share_of_the_draws_is_its_windows_to_the_one_minus_beta(levers: ModuleType, beta: float) -> None:
+    places = np.array(["univ"] * 400 + ["zara"] * 100 + ["eth"] * 4)
+    weights = levers.place_weights(places, beta)
+    shares = np.array([weights[places == p].sum() for p in ("univ", "zara", "eth")]) / weights.sum()
+    expected = np.array([400.0, 100.0, 4.0]) ** (1 - beta)
+    np.testing.assert_allclose(shares, expected / expected.sum())
