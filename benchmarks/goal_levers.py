@@ -107,6 +107,7 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     # of the shares the files give (univ's square holds about 70 % of every other benchmark's training windows).
     "place_balance_0.5": ([], ["place_balance_0.5"]),
     "place_balance_1": ([], ["place_balance_1"]),
+    "weight_decay_0.1": (["goal.weight_decay=0.1"], []),  # AdamW's decay 10× the recipe's 0.01
 }
 MODE_RADII = (0, 1, 2)
 
