@@ -108,6 +108,8 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "place_balance_0.5": ([], ["place_balance_0.5"]),
     "place_balance_1": ([], ["place_balance_1"]),
     "weight_decay_0.1": (["goal.weight_decay=0.1"], []),  # AdamW's decay 10× the recipe's 0.01
+    "weight_decay_0": (["goal.weight_decay=0"], []),
+    "epochs_4": (["goal.epochs=4"], []),  # half the cpu recipe's steps, the same cosine compressed
 }
 MODE_RADII = (0, 1, 2)
 
