@@ -6,7 +6,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from fftool.reporting.doc_tables import gap_table, stage_seconds, targets_table, training_times_table
+from fftool.reporting.doc_tables import (
+    gap_table,
+    retrain_spread_table,
+    retrain_table,
+    stage_seconds,
+    targets_table,
+    training_times_table,
+)
 
 
 def test_the_gap_to_agentformer_is_each_variant_minus_the_baseline(tmp_path: Path) -> None:
@@ -45,6 +52,39 @@ def test_training_times_count_threads_and_schedule_two_jobs(tmp_path: Path) -> N
         "| **sum (thread-minutes)** | **32.0** | **50.0** | **82.0** |",
         "| 2-job wall, ideal (min) | 30.0 | 40.0 | 70.0 |",
     ]
+
+
+def test_a_retrained_benchmark_scales_each_stage_of_the_whole_profile(tmp_path: Path) -> None:
+    paid, now = tmp_path / "paid.csv", tmp_path / "now.csv"
+    paid.write_text(
+        "stage,benchmark,seconds,threads,ranks\n"
+        "goal,zara1,600,1,1\ncvae dr,zara1,1200,2,1\n"  # 10 and 40 thread-minutes
+        "goal,hotel,1800,1,1\ncvae dr,hotel,60,2,1\n"  # 30 and 2
+    )
+    now.write_text(  # 5 and 20 thread-minutes, and a scoring stage the as-paid times do not list
+        "stage,benchmark,seconds,threads,ranks\n"
+        "goal,zara1,300,1,1\ncvae dr,zara1,1200,1,1\nevaluate dr fair,zara1,9,1,1\n"
+    )
+    table = retrain_table(paid, now, "zara1").splitlines()
+    assert table[0] == "| stage | zara1, as paid | zara1, retrained | all, as paid | all, estimated |"
+    assert table[2:] == [
+        "| cvae dr | 40.0 | 20.0 | 42.0 | 21.0 |",  # half as long: every benchmark's dr at half
+        "| goal | 10.0 | 5.0 | 40.0 | 20.0 |",
+        "| **sum (thread-minutes)** | **50.0** | **25.0** | **82.0** | **41.0** |",
+        "| 2-job wall, ideal (min) | 25.0 | 12.5 | 41.0 | 20.5 |",
+    ]
+
+
+def test_the_retrain_spread_is_the_retrained_minus_the_shipped(tmp_path: Path) -> None:
+    columns = ["benchmark", "variant", "min_ade", "min_fde", "nc"]
+    shipped, again = tmp_path / "shipped.csv", tmp_path / "again.csv"
+    pd.DataFrame([("zara1", "cv", 0.3, 0.5, 9), ("zara1", "baseline", 0.19, 0.34, 18), ("hotel", "baseline", 1, 1, 1)],
+                 columns=columns).to_csv(shipped, index=False)  # fmt: skip
+    pd.DataFrame([("zara1", "cv", 0.3, 0.5, 9), ("zara1", "baseline", 0.2, 0.33, 38)], columns=columns).to_csv(
+        again, index=False
+    )
+    table = retrain_spread_table(shipped, again, "zara1").splitlines()
+    assert table[2:] == ["| AgentFormer | 0.190 / 0.340 (18) | 0.200 / 0.330 (38) | +0.010 / -0.010 (+20) |"]
 
 
 def test_a_target_against_agentformer_is_met_only_when_the_bootstrap_settles_it(tmp_path: Path) -> None:

@@ -276,6 +276,24 @@ def gap_table(results_csv: Path | str) -> str:
     return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
 
 
+def retrain_spread_table(shipped_csv: Path | str, retrained_csv: Path | str, benchmark: str) -> str:
+    """A benchmark's test minADE / minFDE and NC from the shipped models and from the same recipe trained again
+    (two `fftool reproduce` results.csv), per predictor that trains, and the change."""
+    frames = [pd.read_csv(path) for path in (shipped_csv, retrained_csv)]
+    shipped, retrained = (frame[frame["benchmark"] == benchmark].set_index("variant") for frame in frames)
+    rows = []
+    for variant in (v for v in PREDICTORS if v in shipped.index and v in retrained.index and v != "cv"):
+        before, after = shipped.loc[variant], retrained.loc[variant]
+        change = f"{after.min_ade - before.min_ade:+.3f} / {after.min_fde - before.min_fde:+.3f}"
+        rows.append([
+            PAPER_NAMES[variant],
+            f"{_pair(before.min_ade, before.min_fde)} ({before.nc:.0f})",
+            f"{_pair(after.min_ade, after.min_fde)} ({after.nc:.0f})",
+            f"{change} ({after.nc - before.nc:+.0f})",
+        ])  # fmt: skip
+    return _markdown(["predictor", "shipped: minADE / minFDE (NC)", "trained again", "change"], rows)
+
+
 def training_times_table(stage_times: Path | str | pd.DataFrame, jobs: int = 2) -> str:
     """Thread-minutes per trained stage and benchmark (build seconds × torch threads × ranks, from a
     `tools/stage_times.py --csv` file or its frame), their sums, and the wall time an ideal `jobs`-way
@@ -294,6 +312,28 @@ def training_times_table(stage_times: Path | str | pd.DataFrame, jobs: int = 2) 
     rows.append(["**sum (thread-minutes)**", *(f"**{sums[b]:.1f}**" for b in benchmarks), f"**{sums.sum():.1f}**"])
     rows.append([f"{jobs}-job wall, ideal (min)", *(f"{w:.1f}" for w in wall), f"{sum(wall):.1f}"])
     return _markdown(["stage", *benchmarks, "all"], rows)
+
+
+def retrain_table(as_paid: Path | str, retrained: Path | str, benchmark: str, jobs: int = 2) -> str:
+    """One benchmark's trained stages in thread-minutes, as the shipped models paid for them and as one run of
+    today's code retrained them (two `tools/stage_times.py --csv` files; the stages the first lists), and what
+    the retrained run's per-stage ratios make of the whole as-paid profile: an estimate, not a timing run."""
+    minutes = {}
+    for name, path in (("paid", as_paid), ("now", retrained)):
+        frame = pd.read_csv(path, keep_default_na=False)
+        frame["minutes"] = frame["seconds"] * frame["threads"] * frame["ranks"] / 60
+        minutes[name] = frame.pivot_table(index="stage", columns="benchmark", values="minutes", aggfunc="sum")
+    paid = minutes["paid"]
+    now = minutes["now"][benchmark].dropna().loc[lambda stages: stages.index.isin(paid.index)]  # trained stages
+    ratio = now / paid[benchmark].loc[now.index]
+    whole_paid, whole_now = paid.loc[now.index].sum(axis=1), paid.loc[now.index].sum(axis=1) * ratio
+    rows = [[stage, f"{paid.at[stage, benchmark]:.1f}", f"{now[stage]:.1f}", f"{whole_paid[stage]:.1f}",
+             f"{whole_now[stage]:.1f}"] for stage in now.index]  # fmt: skip
+    sums = [paid[benchmark].loc[now.index].sum(), now.sum(), whole_paid.sum(), whole_now.sum()]
+    rows.append(["**sum (thread-minutes)**", *(f"**{value:.1f}**" for value in sums)])
+    rows.append([f"{jobs}-job wall, ideal (min)", *(f"{value / jobs:.1f}" for value in sums)])
+    header = ["stage", f"{benchmark}, as paid", f"{benchmark}, retrained", "all, as paid", "all, estimated"]
+    return _markdown(header, rows)
 
 
 def stage_seconds(stage_times_csv: Path | str, **stages: str) -> str:
