@@ -26,7 +26,8 @@ API run them on a user's tracks (lever "shipped": the shipped goal U-Nets, insta
 One lever per process. "before" puts the crop centre back on a cell corner (patch `corner`) and the mode
 back on the argmax cell; "centre" only the second; the other levers change one thing from "before".
 "profile" is the profile file as it is (the shipped recipe), "profile_uni_map" the same with univ's map for
-uni_examples (patch `uni_map`). docs/experiments/goal-levers.md has the results and the rule.
+uni_examples (patch `uni_map`); "place_balance_0.5" draws each epoch's windows with a place's share ∝ n^(1 − β)
+(patch `place_balance_<β>`). docs/experiments/goal-levers.md has the results and the rule.
 """
 
 from __future__ import annotations
@@ -106,7 +107,6 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     # Each epoch's windows drawn with replacement, a place's share of them ∝ its training windows^(1 − β), instead
     # of the shares the files give (univ's square holds about 70 % of every other benchmark's training windows).
     "place_balance_0.5": ([], ["place_balance_0.5"]),
-    "place_balance_1": ([], ["place_balance_1"]),
     "weight_decay_0.1": (["goal.weight_decay=0.1"], []),  # AdamW's decay 10× the recipe's 0.01
     "weight_decay_0": (["goal.weight_decay=0"], []),
     "epochs_4": (["goal.epochs=4"], []),  # half the cpu recipe's steps, the same cosine compressed

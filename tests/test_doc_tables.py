@@ -8,6 +8,7 @@ import pandas as pd
 
 from fftool.reporting.doc_tables import (
     gap_table,
+    largest_retrain_change,
     retrain_spread_table,
     retrain_table,
     stage_seconds,
@@ -85,6 +86,8 @@ def test_the_retrain_spread_is_the_retrained_minus_the_shipped(tmp_path: Path) -
     )
     table = retrain_spread_table(shipped, again, "zara1").splitlines()
     assert table[2:] == ["| AgentFormer | 0.190 / 0.340 (18) | 0.200 / 0.330 (38) | +0.010 / -0.010 (+20) |"]
+    metres, collisions = largest_retrain_change([(shipped, again)], "zara1")
+    assert (round(metres, 6), collisions) == (0.01, 20)
 
 
 def test_a_target_against_agentformer_is_met_only_when_the_bootstrap_settles_it(tmp_path: Path) -> None:

@@ -276,13 +276,30 @@ def gap_table(results_csv: Path | str) -> str:
     return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
 
 
+def _trained_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
+    """A results.csv's rows of one benchmark's trained predictors (constant velocity aside), by variant, in
+    `PREDICTORS` order."""
+    frame = pd.read_csv(results_csv)
+    frame = frame[frame["benchmark"] == benchmark].set_index("variant")
+    return frame.loc[[v for v in PREDICTORS if v in frame.index and v != "cv"]]
+
+
+def largest_retrain_change(pairs: Sequence[tuple[Path | str, Path | str]], benchmark: str) -> tuple[float, int]:
+    """The largest |change| of minADE or minFDE (m) and of NC between shipped and retrained results.csv pairs."""
+    changes = []
+    for shipped_csv, retrained_csv in pairs:
+        shipped, retrained = _trained_rows(shipped_csv, benchmark), _trained_rows(retrained_csv, benchmark)
+        changes.append((retrained[["min_ade", "min_fde", "nc"]] - shipped[["min_ade", "min_fde", "nc"]]).abs().max())
+    largest = pd.concat(changes, axis=1).max(axis=1)
+    return float(max(largest["min_ade"], largest["min_fde"])), int(largest["nc"])
+
+
 def retrain_spread_table(shipped_csv: Path | str, retrained_csv: Path | str, benchmark: str) -> str:
     """A benchmark's test minADE / minFDE and NC from the shipped models and from the same recipe trained again
     (two `fftool reproduce` results.csv), per predictor that trains, and the change."""
-    frames = [pd.read_csv(path) for path in (shipped_csv, retrained_csv)]
-    shipped, retrained = (frame[frame["benchmark"] == benchmark].set_index("variant") for frame in frames)
+    shipped, retrained = _trained_rows(shipped_csv, benchmark), _trained_rows(retrained_csv, benchmark)
     rows = []
-    for variant in (v for v in PREDICTORS if v in shipped.index and v in retrained.index and v != "cv"):
+    for variant in (v for v in shipped.index if v in retrained.index):
         before, after = shipped.loc[variant], retrained.loc[variant]
         change = f"{after.min_ade - before.min_ade:+.3f} / {after.min_fde - before.min_fde:+.3f}"
         rows.append([
@@ -294,15 +311,22 @@ def retrain_spread_table(shipped_csv: Path | str, retrained_csv: Path | str, ben
     return _markdown(["predictor", "shipped: minADE / minFDE (NC)", "trained again", "change"], rows)
 
 
+def _thread_minutes(stage_times: Path | str | pd.DataFrame) -> pd.DataFrame:
+    """Stage × benchmark thread-minutes (build seconds × torch threads × ranks) of a `tools/stage_times.py --csv`
+    file or its frame."""
+    frame = (
+        stage_times.copy() if isinstance(stage_times, pd.DataFrame) else pd.read_csv(stage_times, keep_default_na=False)
+    )
+    frame["minutes"] = frame["seconds"] * frame["threads"] * frame["ranks"] / 60
+    return frame.pivot_table(index="stage", columns="benchmark", values="minutes", aggfunc="sum")
+
+
 def training_times_table(stage_times: Path | str | pd.DataFrame, jobs: int = 2) -> str:
     """Thread-minutes per trained stage and benchmark (build seconds × torch threads × ranks, from a
     `tools/stage_times.py --csv` file or its frame), their sums, and the wall time an ideal `jobs`-way
     schedule of one-thread builds would need per benchmark (the sum over `jobs`, or the longest build if that
     is larger)."""
-    given = isinstance(stage_times, pd.DataFrame)
-    frame = stage_times.copy() if given else pd.read_csv(stage_times, keep_default_na=False)
-    frame["minutes"] = frame["seconds"] * frame["threads"] * frame["ranks"] / 60
-    table = frame.pivot_table(index="stage", columns="benchmark", values="minutes", aggfunc="sum")
+    table = _thread_minutes(stage_times)
     benchmarks = [b for b in BENCHMARKS if b in table.columns]
     cell = lambda value: "" if pd.isna(value) else f"{value:.1f}"  # noqa: E731
     rows = [[stage, *(cell(table.at[stage, b]) for b in benchmarks), cell(table.loc[stage].sum())]
@@ -318,13 +342,8 @@ def retrain_table(as_paid: Path | str, retrained: Path | str, benchmark: str, jo
     """One benchmark's trained stages in thread-minutes, as the shipped models paid for them and as one run of
     today's code retrained them (two `tools/stage_times.py --csv` files; the stages the first lists), and what
     the retrained run's per-stage ratios make of the whole as-paid profile: an estimate, not a timing run."""
-    minutes = {}
-    for name, path in (("paid", as_paid), ("now", retrained)):
-        frame = pd.read_csv(path, keep_default_na=False)
-        frame["minutes"] = frame["seconds"] * frame["threads"] * frame["ranks"] / 60
-        minutes[name] = frame.pivot_table(index="stage", columns="benchmark", values="minutes", aggfunc="sum")
-    paid = minutes["paid"]
-    now = minutes["now"][benchmark].dropna().loc[lambda stages: stages.index.isin(paid.index)]  # trained stages
+    paid = _thread_minutes(as_paid)
+    now = _thread_minutes(retrained)[benchmark].dropna().loc[lambda stages: stages.index.isin(paid.index)]
     ratio = now / paid[benchmark].loc[now.index]
     whole_paid, whole_now = paid.loc[now.index].sum(axis=1), paid.loc[now.index].sum(axis=1) * ratio
     rows = [[stage, f"{paid.at[stage, benchmark]:.1f}", f"{now[stage]:.1f}", f"{whole_paid[stage]:.1f}",
