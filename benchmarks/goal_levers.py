@@ -154,7 +154,8 @@ def _balance_places(beta: float) -> None:
     def trainer(cfg, goals_cfg, benchmark, windows, maps, device):  # type: ignore[no-untyped-def]
         made = original(cfg, goals_cfg, benchmark, windows, maps, device)
         train = goal_stage.load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
-        places = np.array([source_place(source) or source for source in train.source])
+        sources, inverse = np.unique(train.source, return_inverse=True)
+        places = np.array([source_place(source) or source for source in sources])[inverse]
         weights = torch.as_tensor(place_weights(places, beta))
         shares = {str(p): round(float(weights[places == p].sum() / weights.sum()), 3) for p in np.unique(places)}
         print(f"place shares of the draws (beta {beta}): {shares}", flush=True)

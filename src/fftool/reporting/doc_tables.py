@@ -284,30 +284,32 @@ def _trained_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
     return frame.loc[[v for v in PREDICTORS if v in frame.index and v != "cv"]]
 
 
+def _retrain_change(shipped_csv: Path | str, retrained_csv: Path | str, benchmark: str) -> tuple[pd.DataFrame, ...]:
+    """One benchmark's trained predictors, shipped and retrained (results.csv rows by variant, the variants both
+    have), and retrained − shipped of minADE, minFDE and NC."""
+    shipped, retrained = _trained_rows(shipped_csv, benchmark), _trained_rows(retrained_csv, benchmark)
+    shipped, retrained = shipped.loc[shipped.index.isin(retrained.index)], retrained.loc[shipped.index]
+    columns = ["min_ade", "min_fde", "nc"]
+    return shipped, retrained, retrained[columns] - shipped[columns]
+
+
 def largest_retrain_change(pairs: Sequence[tuple[Path | str, Path | str]], benchmark: str) -> tuple[float, int]:
     """The largest |change| of minADE or minFDE (m) and of NC between shipped and retrained results.csv pairs."""
-    changes = []
-    for shipped_csv, retrained_csv in pairs:
-        shipped, retrained = _trained_rows(shipped_csv, benchmark), _trained_rows(retrained_csv, benchmark)
-        changes.append((retrained[["min_ade", "min_fde", "nc"]] - shipped[["min_ade", "min_fde", "nc"]]).abs().max())
-    largest = pd.concat(changes, axis=1).max(axis=1)
+    largest = pd.concat([_retrain_change(*pair, benchmark)[2].abs().max() for pair in pairs], axis=1).max(axis=1)
     return float(max(largest["min_ade"], largest["min_fde"])), int(largest["nc"])
 
 
 def retrain_spread_table(shipped_csv: Path | str, retrained_csv: Path | str, benchmark: str) -> str:
     """A benchmark's test minADE / minFDE and NC from the shipped models and from the same recipe trained again
     (two `fftool reproduce` results.csv), per predictor that trains, and the change."""
-    shipped, retrained = _trained_rows(shipped_csv, benchmark), _trained_rows(retrained_csv, benchmark)
-    rows = []
-    for variant in (v for v in shipped.index if v in retrained.index):
-        before, after = shipped.loc[variant], retrained.loc[variant]
-        change = f"{after.min_ade - before.min_ade:+.3f} / {after.min_fde - before.min_fde:+.3f}"
-        rows.append([
-            PAPER_NAMES[variant],
-            f"{_pair(before.min_ade, before.min_fde)} ({before.nc:.0f})",
-            f"{_pair(after.min_ade, after.min_fde)} ({after.nc:.0f})",
-            f"{change} ({after.nc - before.nc:+.0f})",
-        ])  # fmt: skip
+    shipped, retrained, change = _retrain_change(shipped_csv, retrained_csv, benchmark)
+
+    def cell(row: pd.Series, sign: str = "") -> str:
+        return f"{row.min_ade:{sign}.3f} / {row.min_fde:{sign}.3f} ({row.nc:{sign}.0f})"
+
+    rows = [
+        [PAPER_NAMES[v], cell(shipped.loc[v]), cell(retrained.loc[v]), cell(change.loc[v], "+")] for v in change.index
+    ]
     return _markdown(["predictor", "shipped: minADE / minFDE (NC)", "trained again", "change"], rows)
 
 
@@ -344,8 +346,8 @@ def retrain_table(as_paid: Path | str, retrained: Path | str, benchmark: str, jo
     the retrained run's per-stage ratios make of the whole as-paid profile: an estimate, not a timing run."""
     paid = _thread_minutes(as_paid)
     now = _thread_minutes(retrained)[benchmark].dropna().loc[lambda stages: stages.index.isin(paid.index)]
-    ratio = now / paid[benchmark].loc[now.index]
-    whole_paid, whole_now = paid.loc[now.index].sum(axis=1), paid.loc[now.index].sum(axis=1) * ratio
+    whole_paid = paid.loc[now.index].sum(axis=1)
+    whole_now = whole_paid * now / paid[benchmark].loc[now.index]  # each stage at its retrained ratio
     rows = [[stage, f"{paid.at[stage, benchmark]:.1f}", f"{now[stage]:.1f}", f"{whole_paid[stage]:.1f}",
              f"{whole_now[stage]:.1f}"] for stage in now.index]  # fmt: skip
     sums = [paid[benchmark].loc[now.index].sum(), now.sum(), whole_paid.sum(), whole_now.sum()]
