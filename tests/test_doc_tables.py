@@ -11,6 +11,8 @@ from fftool.reporting.doc_tables import (
     largest_retrain_change,
     retrain_spread_table,
     retrain_table,
+    seed_gap_table,
+    seed_table,
     stage_seconds,
     targets_table,
     training_times_table,
@@ -119,4 +121,30 @@ def test_a_target_against_agentformer_is_met_only_when_the_bootstrap_settles_it(
         "ahead, not settled",  # re: ahead on both, its minFDE interval crosses 0
         "not met",  # the best variant, 0.24 / 0.44, is not at 0.21 / 0.32
         "ahead, not settled",  # re's 40 collisions against 50, the interval crosses 0
+    ]
+
+
+def test_seeds_are_tabulated_per_seed_with_their_spread_and_gaps_to_agentformer(tmp_path: Path) -> None:
+    columns = ["benchmark", "variant", "grid_seed", "min_ade", "min_fde", "nc"]
+    rows = [
+        ("zara1", "cv", 0, 0.3, 0.5, 9),  # trains nothing: no row
+        ("zara1", "baseline", 0, 0.20, 0.34, 10),
+        ("zara1", "baseline", 1, 0.22, 0.36, 20),
+        ("zara1", "re", 0, 0.19, 0.35, 4),  # -0.010 / +0.010 (-6)
+        ("zara1", "re", 1, 0.21, 0.33, 30),  # -0.010 / -0.030 (+10)
+        ("hotel", "re", 0, 1, 1, 1),  # another benchmark
+    ]
+    results = tmp_path / "results.csv"
+    pd.DataFrame(rows, columns=columns).to_csv(results, index=False)
+    table = seed_table(results, "zara1").splitlines()
+    assert table[0] == "| minADE / minFDE (NC) | seed 0 | seed 1 | mean ± sd |"
+    # sd of two values a, b is |a − b| / √2: 0.02 / √2 = 0.014, 10 / √2 = 7
+    assert table[2] == (
+        "| AgentFormer | 0.200 / 0.340 (10) | 0.220 / 0.360 (20) | 0.210 ± 0.014 / 0.350 ± 0.014 (15 ± 7) |"
+    )
+    assert table[3].startswith("| ForceFormer-Re | 0.190 / 0.350 (4) | 0.210 / 0.330 (30) | 0.200 ± 0.014 / 0.340")
+    gaps = seed_gap_table(results, "zara1").splitlines()
+    assert gaps[0] == "| variant − AgentFormer | seed 0 | seed 1 | seeds ahead |"
+    assert gaps[2:] == [
+        "| ForceFormer-Re | -0.010 / +0.010 (-6) | -0.010 / -0.030 (+10) | minADE 2; minFDE 1; NC 1 of 2 |"
     ]

@@ -313,6 +313,46 @@ def retrain_spread_table(shipped_csv: Path | str, retrained_csv: Path | str, ben
     return _markdown(["predictor", "shipped: minADE / minFDE (NC)", "trained again", "change"], rows)
 
 
+def _seed_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
+    """A `reproduce --seeds` results.csv's rows of one benchmark's trained predictors, by (variant, grid seed)."""
+    frame = pd.read_csv(results_csv)
+    frame = frame[(frame["benchmark"] == benchmark) & (frame["variant"] != "cv")]
+    return frame.set_index(["variant", "grid_seed"]).sort_index()
+
+
+def seed_table(results_csv: Path | str, benchmark: str) -> str:
+    """A benchmark's test minADE / minFDE (NC) per predictor and training seed, and the mean ± sd over the seeds
+    (sample sd)."""
+    frame = _seed_rows(results_csv, benchmark)
+    seeds = sorted(frame.index.get_level_values("grid_seed").unique())
+    rows = []
+    for variant in (v for v in PREDICTORS if v in frame.index.get_level_values("variant")):
+        runs = frame.loc[variant]
+        cells = [f"{_pair(runs.min_ade[s], runs.min_fde[s])} ({runs.nc[s]:.0f})" for s in seeds]
+        mean, sd = runs[["min_ade", "min_fde", "nc"]].mean(), runs[["min_ade", "min_fde", "nc"]].std()
+        spread = f"{mean.min_ade:.3f} ± {sd.min_ade:.3f} / {mean.min_fde:.3f} ± {sd.min_fde:.3f}"
+        spread += f" ({mean.nc:.0f} ± {sd.nc:.0f})"
+        rows.append([PAPER_NAMES[variant], *cells, spread])
+    header = ["minADE / minFDE (NC)", *(f"seed {int(s)}" for s in seeds), "mean ± sd"]
+    return _markdown(header, rows)
+
+
+def seed_gap_table(results_csv: Path | str, benchmark: str) -> str:
+    """Each goal variant minus AgentFormer trained with the same seed, minADE / minFDE (m) and NC, per seed, and
+    on how many seeds the variant is ahead on each (negative: ahead)."""
+    frame = _seed_rows(results_csv, benchmark)[["min_ade", "min_fde", "nc"]]
+    seeds = sorted(frame.index.get_level_values("grid_seed").unique())
+    rows = []
+    for variant in (v for v in PREDICTORS if reads_goal(v) and v in frame.index.get_level_values("variant")):
+        gap = frame.loc[variant].loc[seeds] - frame.loc["baseline"].loc[seeds]
+        cells = [f"{gap.min_ade[s]:+.3f} / {gap.min_fde[s]:+.3f} ({gap.nc[s]:+.0f})" for s in seeds]
+        ahead = "; ".join(f"{name} {int((gap[column] < 0).sum())}" for column, name in
+                          (("min_ade", "minADE"), ("min_fde", "minFDE"), ("nc", "NC")))  # fmt: skip
+        rows.append([PAPER_NAMES[variant], *cells, f"{ahead} of {len(seeds)}"])
+    header = ["variant − AgentFormer", *(f"seed {int(s)}" for s in seeds), "seeds ahead"]
+    return _markdown(header, rows)
+
+
 def _thread_minutes(stage_times: Path | str | pd.DataFrame) -> pd.DataFrame:
     """Stage × benchmark thread-minutes (build seconds × torch threads × ranks) of a `tools/stage_times.py --csv`
     file or its frame."""
