@@ -90,7 +90,8 @@ _EXPORT = (
 NOT_RUN = {
     "fftool fetch-data --dest data/eth_ucy/raw": "downloads from the internet; tests/test_fetch.py runs it against "
     "a local server, and the checkout's data/eth_ucy/raw holds the synthetic tree in its place",
-    "fftool reproduce pipelines/cpu.toml --benchmarks zara1": "the cpu profile trains for over an hour; the "
+    "fftool reproduce pipelines/cpu.toml --benchmarks zara1 --jobs 2": "the cpu profile trains for about 48 minutes "
+    "on 2 cores (90 thread-minutes); the "
     "checkout's pipelines/cpu.toml is the tiny profile, which the `fftool models pack` example trains",
     "fftool reproduce pipelines/paper.toml --device cuda": "the full paper configuration needs a GPU and "
     "hours; the test checkout has the quick profile only",

@@ -148,7 +148,7 @@ def _seeds(text: str) -> list[int]:
 
 _REPRODUCE_EXAMPLES = (
     "Examples:\n\n  fftool reproduce pipelines/quick.toml --benchmarks zara1   # 10-14 min on a 2-core CPU\n\n"
-    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1     # ~106 thread-min\n\n"
+    "  fftool reproduce pipelines/cpu.toml --benchmarks zara1 --jobs 2   # ~48 min on 2 cores\n\n"
     "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --seeds 0,1,2   # 3 seeds, mean ±sd\n\n"
     "  fftool reproduce pipelines/quick.toml --benchmarks zara1 --jobs 2   # two builds at a time, 1 thread each\n\n"
     "  fftool reproduce pipelines/paper.toml --device cuda         # the full configuration, for a GPU\n\n"
