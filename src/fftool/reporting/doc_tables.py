@@ -320,37 +320,45 @@ def _seed_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
     return frame.set_index(["variant", "grid_seed"]).sort_index()
 
 
+def seed_spread(results_csv: Path | str, benchmark: str) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The mean and the (sample) standard deviation over the seeds of each predictor's minADE, minFDE and NC."""
+    by_variant = _seed_rows(results_csv, benchmark)[["min_ade", "min_fde", "nc"]].groupby(level="variant")
+    return by_variant.mean(), by_variant.std()
+
+
+def seed_gaps(results_csv: Path | str, benchmark: str) -> dict[str, pd.DataFrame]:
+    """Each goal variant minus AgentFormer trained with the same seed: minADE, minFDE and NC by seed."""
+    frame = _seed_rows(results_csv, benchmark)[["min_ade", "min_fde", "nc"]]
+    variants = frame.index.get_level_values("variant")
+    return {v: frame.loc[v] - frame.loc["baseline"] for v in PREDICTORS if reads_goal(v) and v in variants}
+
+
 def seed_table(results_csv: Path | str, benchmark: str) -> str:
-    """A benchmark's test minADE / minFDE (NC) per predictor and training seed, and the mean ± sd over the seeds
-    (sample sd)."""
+    """A benchmark's test minADE / minFDE (NC) per predictor and training seed, and the mean ± sd over the seeds."""
     frame = _seed_rows(results_csv, benchmark)
+    mean, sd = seed_spread(results_csv, benchmark)
     seeds = sorted(frame.index.get_level_values("grid_seed").unique())
     rows = []
-    for variant in (v for v in PREDICTORS if v in frame.index.get_level_values("variant")):
-        runs = frame.loc[variant]
-        cells = [f"{_pair(runs.min_ade[s], runs.min_fde[s])} ({runs.nc[s]:.0f})" for s in seeds]
-        mean, sd = runs[["min_ade", "min_fde", "nc"]].mean(), runs[["min_ade", "min_fde", "nc"]].std()
-        spread = f"{mean.min_ade:.3f} ± {sd.min_ade:.3f} / {mean.min_fde:.3f} ± {sd.min_fde:.3f}"
-        spread += f" ({mean.nc:.0f} ± {sd.nc:.0f})"
+    for variant in (v for v in PREDICTORS if v in mean.index):
+        runs, m, s = frame.loc[variant], mean.loc[variant], sd.loc[variant]
+        cells = [f"{_pair(runs.min_ade[seed], runs.min_fde[seed])} ({runs.nc[seed]:.0f})" for seed in seeds]
+        spread = f"{m.min_ade:.3f} ± {s.min_ade:.3f} / {m.min_fde:.3f} ± {s.min_fde:.3f} ({m.nc:.0f} ± {s.nc:.0f})"
         rows.append([PAPER_NAMES[variant], *cells, spread])
-    header = ["minADE / minFDE (NC)", *(f"seed {int(s)}" for s in seeds), "mean ± sd"]
+    header = ["minADE / minFDE (NC)", *(f"seed {int(seed)}" for seed in seeds), "mean ± sd"]
     return _markdown(header, rows)
 
 
 def seed_gap_table(results_csv: Path | str, benchmark: str) -> str:
-    """Each goal variant minus AgentFormer trained with the same seed, minADE / minFDE (m) and NC, per seed, and
-    on how many seeds the variant is ahead on each (negative: ahead)."""
-    frame = _seed_rows(results_csv, benchmark)[["min_ade", "min_fde", "nc"]]
-    seeds = sorted(frame.index.get_level_values("grid_seed").unique())
-    rows = []
-    for variant in (v for v in PREDICTORS if reads_goal(v) and v in frame.index.get_level_values("variant")):
-        gap = frame.loc[variant].loc[seeds] - frame.loc["baseline"].loc[seeds]
-        cells = [f"{gap.min_ade[s]:+.3f} / {gap.min_fde[s]:+.3f} ({gap.nc[s]:+.0f})" for s in seeds]
-        ahead = "; ".join(f"{name} {int((gap[column] < 0).sum())}" for column, name in
-                          (("min_ade", "minADE"), ("min_fde", "minFDE"), ("nc", "NC")))  # fmt: skip
-        rows.append([PAPER_NAMES[variant], *cells, f"{ahead} of {len(seeds)}"])
-    header = ["variant − AgentFormer", *(f"seed {int(s)}" for s in seeds), "seeds ahead"]
-    return _markdown(header, rows)
+    """`seed_gaps` per seed, minADE / minFDE (m) and NC, and on how many seeds each variant is ahead on each
+    (negative: ahead)."""
+    gaps, rows = seed_gaps(results_csv, benchmark), []
+    for variant, gap in gaps.items():
+        cells = [f"{g.min_ade:+.3f} / {g.min_fde:+.3f} ({g.nc:+.0f})" for g in gap.itertuples()]
+        ahead = (gap < 0).sum()
+        counts = f"minADE {ahead.min_ade}; minFDE {ahead.min_fde}; NC {ahead.nc} of {len(gap)}"
+        rows.append([PAPER_NAMES[variant], *cells, counts])
+    seeds = next(iter(gaps.values())).index
+    return _markdown(["variant − AgentFormer", *(f"seed {int(seed)}" for seed in seeds), "seeds ahead"], rows)
 
 
 def _thread_minutes(stage_times: Path | str | pd.DataFrame) -> pd.DataFrame:
