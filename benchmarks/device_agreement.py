@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import tempfile
 import time
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import pandas as pd
 import torch
 
 from fftool.api import load, load_goal_sampler, predict_tracks
-from fftool.dataset.trackfiles import read_tracks
+from fftool.dataset.rawfiles import read_raw
 from fftool.variants import reads_goal
 
 DEFAULT_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_ucy" / "raw"
@@ -33,12 +32,12 @@ VARIANTS = ("baseline", "goal", "dr", "re")
 TIMED_EVERY = 10  # every 10th time of the recording
 
 
-def _tracks(raw: Path, folder: Path) -> tuple[pd.DataFrame, Path]:
-    """zara1's test recording as predict reads a user's file: frame, agent, x, y."""
-    path = folder / "crowds_zara01.csv"
-    table = np.loadtxt(raw / "all_data" / "crowds_zara01.txt")
-    np.savetxt(path, table, delimiter=",", header="frame,agent,x,y", comments="", fmt="%.10g")
-    return read_tracks(path, frame_step_s=0.4), path
+def _tracks(path: Path) -> pd.DataFrame:
+    """A raw recording as `predict_tracks` takes a user's tracks: rows (time_s, agent, x, y), by agent then time
+    (frame ids at 25 frames per second)."""
+    raw = read_raw(path, frame_stride=10)
+    tracks = pd.DataFrame({"time_s": raw.frame_id * 0.04, "agent": raw.ped_id, "x": raw.x, "y": raw.y})
+    return tracks.sort_values(["agent", "time_s"], kind="stable").reset_index(drop=True)
 
 
 def _synchronize(device: str) -> None:
@@ -56,7 +55,8 @@ def main() -> None:
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         parser.error(f"--device {args.device}: torch sees no CUDA device here")
 
-    tracks, path = _tracks(args.raw, Path(tempfile.mkdtemp()))
+    path = args.raw / "all_data" / "crowds_zara01.txt"
+    tracks = _tracks(path)
     last = tracks.groupby("agent")[["x", "y"]].last()
     goals = {agent: (float(x), float(y)) for agent, (x, y) in last.iterrows()}
     rows = []

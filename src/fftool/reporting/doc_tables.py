@@ -276,12 +276,16 @@ def gap_table(results_csv: Path | str) -> str:
     return _markdown(["variant − AgentFormer (m)", *benchmarks, "average", "ahead on both"], rows)
 
 
-def _trained_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
-    """A results.csv's rows of one benchmark's trained predictors (constant velocity aside), by variant, in
-    `PREDICTORS` order."""
+def _trained(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
+    """A results.csv's rows of one benchmark's trained predictors (constant velocity aside)."""
     frame = pd.read_csv(results_csv)
-    frame = frame[frame["benchmark"] == benchmark].set_index("variant")
-    return frame.loc[[v for v in PREDICTORS if v in frame.index and v != "cv"]]
+    return frame[(frame["benchmark"] == benchmark) & (frame["variant"] != "cv")]
+
+
+def _trained_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
+    """`_trained` by variant, in `PREDICTORS` order."""
+    frame = _trained(results_csv, benchmark).set_index("variant")
+    return frame.loc[[v for v in PREDICTORS if v in frame.index]]
 
 
 def _retrain_change(shipped_csv: Path | str, retrained_csv: Path | str, benchmark: str) -> tuple[pd.DataFrame, ...]:
@@ -314,16 +318,18 @@ def retrain_spread_table(shipped_csv: Path | str, retrained_csv: Path | str, ben
 
 
 def _seed_rows(results_csv: Path | str, benchmark: str) -> pd.DataFrame:
-    """A `reproduce --seeds` results.csv's rows of one benchmark's trained predictors, by (variant, grid seed)."""
-    frame = pd.read_csv(results_csv)
-    frame = frame[(frame["benchmark"] == benchmark) & (frame["variant"] != "cv")]
-    return frame.set_index(["variant", "grid_seed"]).sort_index()
+    """`_trained` of a `reproduce --seeds` results.csv, by (variant, grid seed)."""
+    return _trained(results_csv, benchmark).set_index(["variant", "grid_seed"]).sort_index()
+
+
+def _spread(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    by_variant = runs[["min_ade", "min_fde", "nc"]].groupby(level="variant")
+    return by_variant.mean(), by_variant.std()
 
 
 def seed_spread(results_csv: Path | str, benchmark: str) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The mean and the (sample) standard deviation over the seeds of each predictor's minADE, minFDE and NC."""
-    by_variant = _seed_rows(results_csv, benchmark)[["min_ade", "min_fde", "nc"]].groupby(level="variant")
-    return by_variant.mean(), by_variant.std()
+    return _spread(_seed_rows(results_csv, benchmark))
 
 
 def seed_gaps(results_csv: Path | str, benchmark: str) -> dict[str, pd.DataFrame]:
@@ -336,7 +342,7 @@ def seed_gaps(results_csv: Path | str, benchmark: str) -> dict[str, pd.DataFrame
 def seed_table(results_csv: Path | str, benchmark: str) -> str:
     """A benchmark's test minADE / minFDE (NC) per predictor and training seed, and the mean ± sd over the seeds."""
     frame = _seed_rows(results_csv, benchmark)
-    mean, sd = seed_spread(results_csv, benchmark)
+    mean, sd = _spread(frame)
     seeds = sorted(frame.index.get_level_values("grid_seed").unique())
     rows = []
     for variant in (v for v in PREDICTORS if v in mean.index):
