@@ -26,6 +26,7 @@ import torch
 from fftool.api import load, load_goal_sampler, predict_tracks
 from fftool.dataset.rawfiles import read_raw
 from fftool.variants import reads_goal
+from fftool.zoo import profile_config
 
 DEFAULT_RAW = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "eth_ucy" / "raw"
 VARIANTS = ("baseline", "goal", "dr", "re")
@@ -33,10 +34,12 @@ TIMED_EVERY = 10  # every 10th time of the recording
 
 
 def _tracks(path: Path) -> pd.DataFrame:
-    """A raw recording as `predict_tracks` takes a user's tracks: rows (time_s, agent, x, y), by agent then time
-    (frame ids at 25 frames per second)."""
-    raw = read_raw(path, frame_stride=10)
-    tracks = pd.DataFrame({"time_s": raw.frame_id * 0.04, "agent": raw.ped_id, "x": raw.x, "y": raw.y})
+    """A raw recording as `predict_tracks` takes a user's tracks: rows (time_s, agent, x, y), by agent then time,
+    with the frame stride and step the cpu profile ingests it with."""
+    ingest = profile_config("cpu").ingest
+    raw = read_raw(path, frame_stride=ingest.frame_stride)
+    seconds_per_frame = ingest.dt_s / ingest.frame_stride
+    tracks = pd.DataFrame({"time_s": raw.frame_id * seconds_per_frame, "agent": raw.ped_id, "x": raw.x, "y": raw.y})
     return tracks.sort_values(["agent", "time_s"], kind="stable").reset_index(drop=True)
 
 
