@@ -8,6 +8,7 @@ which `fftool models validate` records for the shipped models). Reads no test wi
     python benchmarks/fair_validation.py --root R --goals goals/<id> cvae/<id> [dlow/<id> ...]
 
 A DLow sampler (dlow/<id>) is scored over the CVAE it was trained on, on the sampler's own validation subset.
+`--val-windows N` scores every model on the same N validation windows instead (drawn with the CVAE's seed).
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ def main() -> None:
     parser.add_argument(
         "--code", choices=("prior", "mean"), default="prior", help="evaluate.fair_code: the code each goal decodes with"
     )
+    parser.add_argument(
+        "--val-windows", type=int, help="score this many validation windows (the same for every model of a seed)"
+    )
     args = parser.parse_args()
     writer = csv.writer(sys.stdout)
     writer.writerow(["model", "variant", "benchmark", "best_epoch", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
@@ -41,7 +45,7 @@ def main() -> None:
         cvae = found_cvae if dlow else find_artifact(ref, "cvae", args.root)[1]
         if cvae is None:
             sys.exit(f"{ref}: the CVAE it samples from is not in {args.root}")
-        found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"), args.code)
+        found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"), args.code, args.val_windows)
         stats = cvae.manifest.stats
         numbers = [f"{found['min_ade_m']:.4f}", f"{found['min_fde_m']:.4f}"]
         best = (dlow or cvae).manifest.stats["best_epoch"]

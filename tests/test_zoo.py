@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from typer.testing import CliRunner
 
 from fftool import api, pipeline, zoo
@@ -19,6 +20,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError
+from fftool.learning.fair_validation import fair_validation
 from fftool.online import OnlinePredictor
 from fftool.reporting.summaries import zoo_rows
 from tests.test_maps import make_scene
@@ -298,6 +300,21 @@ def test_models_validate_shows_goal_variants_under_the_fair_protocol(tiny: dict[
     # each benchmark reads the whole zoo, which must stay whole after the one before was scored
     assert zoo.validate(ArtifactStore(source), "tiny", ["zara1", "zara1"]) == ["tiny/zara1/dr"] * 2
     assert goals.id in {a.id for a in ArtifactStore(source).list("goals")}
+
+
+def test_fair_validation_scores_a_chosen_number_of_validation_windows(tiny: dict[str, Path]) -> None:
+    """`windows` draws the subset as training does, with the CVAE's seed: its own count reproduces the model's own
+    fair validation, and more windows score more (every model of a benchmark and seed on the same ones)."""
+    source = tiny["tmp"] / "store"
+    shutil.copytree(tiny["trained"], source, ignore=shutil.ignore_patterns(".locks"))
+    store = ArtifactStore(source)
+    goals = pipeline.run(load_config(tiny["pipelines"] / "tiny.toml"), store, ["goals"], benchmark="zara1")["goals"]
+    (cvae,) = (a for a in store.list("cvae") if a.manifest.stats["variant"] == "dr")
+    own = fair_validation(store, goals, cvae, None, torch.device("cpu"), "mean")
+    same = fair_validation(store, goals, cvae, None, torch.device("cpu"), "mean", windows=own["windows"])
+    assert same == own
+    more = fair_validation(store, goals, cvae, None, torch.device("cpu"), "mean", windows=own["windows"] + 2)
+    assert more["windows"] == own["windows"] + 2 and more["min_ade_m"] != own["min_ade_m"]
 
 
 def summaries_best(model: zoo.Shipped) -> tuple[float, float]:

@@ -44,30 +44,32 @@ def fair_validation(
     dlow: Artifact | None,
     device: torch.device,
     code: FairCode = "prior",
+    windows: int | None = None,
 ) -> dict[str, Any]:
     """minADE / minFDE@K (metres) of `cvae` (through `dlow` when given) on its validation windows, sample k
     decoding goal k of the goals artifact `goals`; with the number of windows and the goal U-Net they came from.
     The windows are those the model's own training validated on (the CVAE's or the sampler's fixed subset).
-    code "mean": each goal decoded from the prior's mean code (evaluate.fair_code), the sampler unused."""
+    code "mean": each goal decoded from the prior's mean code (evaluate.fair_code), the sampler unused.
+    windows: score this many validation windows instead (drawn with the CVAE's seed, so models of one benchmark
+    and seed share them), where the model's own subset is too small to tell two recipes apart."""
     trained = load_model(cvae, device)
     cfg, benchmark = trained.config, str(cvae.manifest.stats["benchmark"])
-    windows = _upstream(store, cvae, "windows")
-    assert windows is not None, "every CVAE trains on a windows artifact"
+    windowing = _upstream(store, cvae, "windows")
+    assert windowing is not None, "every CVAE trains on a windows artifact"
     val = load_scene_set(
-        windows, _upstream(store, cvae, "forces"), benchmark, "val", reads=SPECS[cfg.variant].training_reads
+        windowing, _upstream(store, cvae, "forces"), benchmark, "val", reads=SPECS[cfg.variant].training_reads
     )
     sampled = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
-    if dlow is None:
-        subset, seed, sampler = val_windows(val, cfg), cfg.seed, None
+    sampler = load_sampler(dlow, device) if dlow is not None else None
+    if windows is not None:
+        subset, seed = validation_subset(val.windows, windows, cfg.seed), cfg.seed
+    elif dlow is None:
+        subset, seed = val_windows(val, cfg), cfg.seed
     else:
-        params = dlow.manifest.params
-        seed = int(params["seed"])
-        subset, sampler = (
-            validation_subset(val.windows, int(params["val_max_windows"]), seed),
-            load_sampler(dlow, device),
-        )
+        seed = int(dlow.manifest.params["seed"])
+        subset = validation_subset(val.windows, int(dlow.manifest.params["val_max_windows"]), seed)
     ade, fde = fair_min_ade_fde(
-        trained, val, subset, sampled, int(windows.manifest.stats["obs_len"]), cfg.k, seed, sampler, code
+        trained, val, subset, sampled, int(windowing.manifest.stats["obs_len"]), cfg.k, seed, sampler, code
     )
     return {
         "min_ade_m": round(ade, 6),
