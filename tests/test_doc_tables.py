@@ -9,6 +9,7 @@ import pandas as pd
 from fftool.reporting.doc_tables import (
     gap_table,
     largest_retrain_change,
+    output_lever_table,
     retrain_spread_table,
     retrain_table,
     seed_gap_table,
@@ -148,3 +149,25 @@ def test_seeds_are_tabulated_per_seed_with_their_spread_and_gaps_to_agentformer(
     assert gaps[2:] == [
         "| ForceFormer-Re | -0.010 / +0.010 (-6) | -0.010 / -0.030 (+10) | minADE 2; minFDE 1; NC 1 of 2 |"
     ]
+
+
+def test_an_output_lever_is_tabulated_against_the_shipped_model_per_code(tmp_path: Path) -> None:
+    benchmarks = ["eth", "hotel", "univ", "zara1", "zara2"]
+    codes, lever = tmp_path / "codes.csv", tmp_path / "lever.csv"
+    pd.DataFrame(
+        [(b, "dr", "prior draws", 0.30, 0.50) for b in benchmarks]
+        + [(b, "dr", "prior mean", 0.9, 0.9) for b in benchmarks]
+        + [(b, "goal", "prior draws", 0.9, 0.9) for b in benchmarks],
+        columns=["benchmark", "variant", "sampling", "fair_min_ade_m", "fair_min_fde_m"],
+    ).to_csv(codes, index=False)
+    pd.DataFrame(
+        [(b, "prior", 0.20 + 0.01 * i, 0.40) for i, b in enumerate(benchmarks)]
+        + [(b, "mean", 0.10, 0.30) for b in benchmarks],
+        columns=["benchmark", "code", "fair_min_ade_m", "fair_min_fde_m"],
+    ).to_csv(lever, index=False)
+    lines = output_lever_table(lever, codes, "dr", "shipped", "prior draws").splitlines()
+    assert lines[0] == "| dr | codes | eth | hotel | univ | zara1 | zara2 | average |"
+    assert lines[2] == "| shipped | prior draws |" + " 0.300 / 0.500 |" * 5 + " **0.3000 / 0.5000** |"
+    assert lines[3].startswith("| goal_residual | prior draws | 0.200 / 0.400 | 0.210 / 0.400 |")
+    assert lines[3].endswith("| **0.2200 / 0.4000** |")  # (0.20 + 0.21 + 0.22 + 0.23 + 0.24) / 5
+    assert lines[4] == "| goal_residual | prior mean |" + " 0.100 / 0.300 |" * 5 + " **0.1000 / 0.3000** |"

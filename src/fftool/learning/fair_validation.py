@@ -18,7 +18,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import FairCode
 from fftool.errors import FftoolError
 from fftool.learning.batches import load_scene_set
-from fftool.learning.cvae_model import load_model, val_windows
+from fftool.learning.cvae_model import load_model
 from fftool.learning.dlow_model import load_sampler
 from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
 from fftool.learning.training import validation_subset
@@ -61,13 +61,11 @@ def fair_validation(
     )
     sampled = np.asarray(load_sampled_goals(goals, val, benchmark, "val"))
     sampler = load_sampler(dlow, device) if dlow is not None else None
-    if windows is not None:
-        subset, seed = validation_subset(val.windows, windows, cfg.seed), cfg.seed
-    elif dlow is None:
-        subset, seed = val_windows(val, cfg), cfg.seed
-    else:
-        seed = int(dlow.manifest.params["seed"])
-        subset = validation_subset(val.windows, int(dlow.manifest.params["val_max_windows"]), seed)
+    if windows is None and dlow is not None:  # the sampler's own subset
+        most, seed = int(dlow.manifest.params["val_max_windows"]), int(dlow.manifest.params["seed"])
+    else:  # the CVAE's own subset (`cvae_model.val_windows`), or `windows` drawn the same way
+        most, seed = cfg.val_max_windows if windows is None else windows, cfg.seed
+    subset = validation_subset(val.windows, most, seed)
     ade, fde = fair_min_ade_fde(
         trained, val, subset, sampled, int(windowing.manifest.stats["obs_len"]), cfg.k, seed, sampler, code
     )

@@ -204,6 +204,27 @@ def levers_table(
                      numeric_from=1 + len(modes))  # fmt: skip
 
 
+_LEVER_CODES = (("prior", "prior draws"), ("mean", "prior mean"))  # fair_validation.py's --code, as the tables name it
+
+
+def output_lever_table(
+    lever_csv: Path | str, codes_csv: Path | str, variant: str, shipped: str, shipped_sampling: str
+) -> str:
+    """A goal variant retrained with `cvae.output = "goal_residual"` (`benchmarks/fair_validation.py` rows with a
+    `code` column) against its shipped model under one sampling (`benchmarks/fair_codes.py` rows): fair validation
+    minADE / minFDE per benchmark and their average, one row per model and code."""
+    lever, codes = pd.read_csv(lever_csv), pd.read_csv(codes_csv)
+    runs = [(shipped, shipped_sampling, codes[(codes.variant == variant) & (codes.sampling == shipped_sampling)])]
+    runs += [("goal_residual", sampling, lever[lever.code == code]) for code, sampling in _LEVER_CODES]
+    rows = []
+    for name, sampling, frame in runs:
+        by = frame.set_index("benchmark")
+        cells = [_pair(by.fair_min_ade_m[b], by.fair_min_fde_m[b]) for b in BENCHMARKS]
+        average = _pair(by.fair_min_ade_m.mean(), by.fair_min_fde_m.mean(), digits=4)
+        rows.append([name, sampling, *cells, f"**{average}**"])
+    return _markdown([variant, "codes", *BENCHMARKS, "average"], rows, numeric_from=2)
+
+
 def lever_average(levers_csv: Path | str, lever: str, radius: int) -> float:
     """A lever's five-benchmark average validation goal-FDE@20 (m) with the mode over `radius` cells, for prose."""
     frame = pd.read_csv(levers_csv)
