@@ -45,14 +45,21 @@ def fair_validation(
     device: torch.device,
     code: FairCode = "prior",
     windows: int | None = None,
+    residual_scale: float = 1.0,
 ) -> dict[str, Any]:
     """minADE / minFDE@K (metres) of `cvae` (through `dlow` when given) on its validation windows, sample k
     decoding goal k of the goals artifact `goals`; with the number of windows and the goal U-Net they came from.
     The windows are those the model's own training validated on (the CVAE's or the sampler's fixed subset).
     code "mean": each goal decoded from the prior's mean code (evaluate.fair_code), the sampler unused.
     windows: score this many validation windows instead (drawn with the CVAE's seed, so models of one benchmark
-    and seed share them), where the model's own subset is too small to tell two recipes apart."""
+    and seed share them), where the model's own subset is too small to tell two recipes apart.
+    residual_scale: the decoder's output head times this factor (1 = as trained; 0 = the path the output is a
+    residual over, `forceformer.output_base`, with no network), to measure what the network adds to it."""
     trained = load_model(cvae, device)
+    if residual_scale != 1.0:
+        with torch.no_grad():
+            for parameter in trained.model.out.parameters():  # scales W·x + b, so the whole learned output
+                parameter.mul_(residual_scale)
     cfg, benchmark = trained.config, str(cvae.manifest.stats["benchmark"])
     windowing = _upstream(store, cvae, "windows")
     assert windowing is not None, "every CVAE trains on a windows artifact"
