@@ -302,7 +302,7 @@ def test_models_validate_shows_goal_variants_under_the_fair_protocol(tiny: dict[
     assert goals.id in {a.id for a in ArtifactStore(source).list("goals")}
 
 
-def test_fair_validation_scores_a_chosen_number_of_validation_windows(tiny: dict[str, Path]) -> None:
+def test_fair_validation_scores_a_chosen_number_of_windows_and_a_scaled_residual(tiny: dict[str, Path]) -> None:
     """`windows` draws the subset as training does, with the CVAE's seed: its own count reproduces the model's own
     fair validation, and more windows score more (every model of a benchmark and seed on the same ones)."""
     source = tiny["tmp"] / "store"
@@ -315,6 +315,15 @@ def test_fair_validation_scores_a_chosen_number_of_validation_windows(tiny: dict
     assert same == own
     more = fair_validation(store, goals, cvae, None, torch.device("cpu"), "mean", windows=own["windows"] + 2)
     assert more["windows"] == own["windows"] + 2 and more["min_ade_m"] != own["min_ade_m"]
+    # residual_scale 0 leaves only the path the output is a residual over (here "offset": standing still), which
+    # no code and no other model's weights can move
+    curve = fair_validation(store, goals, cvae, None, torch.device("cpu"), "mean", residual_scale=0.0)
+    drawn = fair_validation(store, goals, cvae, None, torch.device("cpu"), "prior", residual_scale=0.0)
+    (baseline,) = (a for a in store.list("cvae") if a.manifest.stats["variant"] == "baseline")
+    other = fair_validation(store, goals, baseline, None, torch.device("cpu"), "prior", residual_scale=0.0)
+    assert curve["min_ade_m"] == drawn["min_ade_m"] == other["min_ade_m"] != own["min_ade_m"]
+    halfway = fair_validation(store, goals, cvae, None, torch.device("cpu"), "mean", residual_scale=0.5)
+    assert halfway["min_ade_m"] not in (own["min_ade_m"], curve["min_ade_m"])
 
 
 def summaries_best(model: zoo.Shipped) -> tuple[float, float]:
