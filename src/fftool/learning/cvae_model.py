@@ -290,6 +290,15 @@ class Trained(NamedTuple):
     dt_s: float | None  # the time step its forces were computed with
 
 
+def scale_output(trained: Trained, factor: float) -> Trained:
+    """The model with its decoder's output head times `factor`, in place: 0 leaves only the path the output is a
+    residual over (`forceformer.output_base`), with no network, to measure what the network adds to it."""
+    with torch.no_grad():
+        for parameter in trained.model.out.parameters():  # W·x + b, so the whole learned output
+            parameter.mul_(factor)
+    return trained
+
+
 def load_model(cvae: Artifact, device: torch.device) -> Trained:
     """Rebuild a trained model from its artifact alone (a damaged model file is an IntegrityError)."""
     with model_file(cvae.file(CVAE_MODEL_FILE), device, "fftool train-cvae --force") as saved:

@@ -18,7 +18,7 @@ from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import FairCode
 from fftool.errors import FftoolError
 from fftool.learning.batches import load_scene_set
-from fftool.learning.cvae_model import load_model
+from fftool.learning.cvae_model import load_model, scale_output
 from fftool.learning.dlow_model import load_sampler
 from fftool.learning.sampling import fair_min_ade_fde, load_sampled_goals
 from fftool.learning.training import validation_subset
@@ -53,13 +53,8 @@ def fair_validation(
     code "mean": each goal decoded from the prior's mean code (evaluate.fair_code), the sampler unused.
     windows: score this many validation windows instead (drawn with the CVAE's seed, so models of one benchmark
     and seed share them), where the model's own subset is too small to tell two recipes apart.
-    residual_scale: the decoder's output head times this factor (1 = as trained; 0 = the path the output is a
-    residual over, `forceformer.output_base`, with no network), to measure what the network adds to it."""
-    trained = load_model(cvae, device)
-    if residual_scale != 1.0:
-        with torch.no_grad():
-            for parameter in trained.model.out.parameters():  # scales W·x + b, so the whole learned output
-                parameter.mul_(residual_scale)
+    residual_scale: the decoder's output head times this factor (`cvae_model.scale_output`; 1 = as trained)."""
+    trained = scale_output(load_model(cvae, device), residual_scale)
     cfg, benchmark = trained.config, str(cvae.manifest.stats["benchmark"])
     windowing = _upstream(store, cvae, "windows")
     assert windowing is not None, "every CVAE trains on a windows artifact"
