@@ -304,7 +304,8 @@ def test_models_validate_shows_goal_variants_under_the_fair_protocol(tiny: dict[
 
 def test_fair_validation_scores_a_chosen_number_of_windows_and_a_scaled_residual(tiny: dict[str, Path]) -> None:
     """`windows` draws the subset as training does, with the CVAE's seed: its own count reproduces the model's own
-    fair validation, and more windows score more (every model of a benchmark and seed on the same ones)."""
+    fair validation, and more windows score more (every model of a benchmark and seed on the same ones).
+    `residual_scale` scales the whole learned output: at 0 only the path it is a residual over is left."""
     source = tiny["tmp"] / "store"
     shutil.copytree(tiny["trained"], source, ignore=shutil.ignore_patterns(".locks"))
     store = ArtifactStore(source)
