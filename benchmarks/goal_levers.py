@@ -175,6 +175,8 @@ def _read_neighbours(obs_len: int = 8, pred_len: int = 12) -> None:
     `load_agent_windows` registers for every agent-window it loads; the others are that window's rows."""
     import fftool.stages.goal as goal_stage
 
+    if getattr(goal_model.goal_inputs, "reads_neighbours", False):  # patched for an earlier benchmark already
+        return
     others: dict[bytes, np.ndarray] = {}  # key -> (n, 2, 2): the others' last positions and CV goals
 
     def key(last_two: np.ndarray) -> bytes:
@@ -183,7 +185,8 @@ def _read_neighbours(obs_len: int = 8, pred_len: int = 12) -> None:
     def register(data: AgentWindows) -> AgentWindows:
         last, previous = data.xy[:, obs_len - 1], data.xy[:, obs_len - 2]
         points = np.stack([last, last + pred_len * (last - previous)], 1)  # (M, 2, 2)
-        groups = np.unique(np.char.add(np.char.add(data.source.astype(str), "|"), data.window_id.astype(str)), return_inverse=True)[1]
+        window = np.char.add(np.char.add(data.source.astype(str), "|"), data.window_id.astype(str))
+        groups = np.unique(window, return_inverse=True)[1]
         order = np.argsort(groups, kind="stable")
         bounds = np.flatnonzero(np.diff(groups[order])) + 1
         for members in np.split(order, bounds):
@@ -211,6 +214,7 @@ def _read_neighbours(obs_len: int = 8, pred_len: int = 12) -> None:
             channels.append(heatmaps.render(cells, cfg.crop_cells, cfg.heatmap_sigma_cells).sum(1).clamp(max=1))
         return torch.cat([x, torch.stack(channels, 1).to(x.dtype)], 1), center, R
 
+    inputs.reads_neighbours = True  # type: ignore[attr-defined]
     goal_model.goal_inputs = goal_stage.goal_inputs = inputs
     goal_stage.input_channels = lambda cfg, obs, maps: base_channels(cfg, obs, maps) + 2
 
