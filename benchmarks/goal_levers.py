@@ -111,6 +111,8 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "weight_decay_0": (["goal.weight_decay=0"], []),
     "epochs_4": (["goal.epochs=4"], []),  # half the cpu recipe's steps, the same cosine compressed
     "neighbours": ([], ["neighbours"]),  # the window's other walkers and their CV goals as two input channels
+    "recipe_8_argmax_seed1": (["goal.seed=1"], []),  # the pair again from another seed: how large the margin is
+    "neighbours_seed1": (["goal.seed=1"], ["neighbours"]),
 }
 MODE_RADII = (0, 1, 2)
 
