@@ -36,11 +36,9 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, required=True)
     args = parser.parse_args()
     benchmarks = BENCHMARKS if args.benchmarks == "all" else tuple(args.benchmarks.split(","))
-    cfg, source, rows = zoo.profile_config(args.profile), ArtifactStore(args.root), []
+    source, rows = ArtifactStore(args.root), []
     for benchmark in benchmarks:
-        goals = source.lookup("goals", zoo.chain(cfg, "goals", None, benchmark)["goals"].fingerprint)
-        if goals is None:
-            sys.exit(f"{args.root}: no goals of {benchmark}; run fftool sample-goals -c pipelines/{args.profile}.toml")
+        goals = zoo.shipped_goals(source, args.profile, benchmark)
         models = zoo.shipped(args.profile, [benchmark])
         cvaes = {m.variant: m.artifact for m in models if m.kind == "cvae"}
         for model in models:

@@ -385,6 +385,17 @@ def pack(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: P
     return packed
 
 
+def shipped_goals(source: ArtifactStore, profile: str, benchmark: str) -> Artifact:
+    """The goals artifact the profile's shipped goal U-Net drew for `benchmark`, as `source` holds it."""
+    goals = source.lookup("goals", chain(profile_config(profile), "goals", None, benchmark)["goals"].fingerprint)
+    if goals is None:
+        raise FftoolError(
+            f"{source.root} has no goals of {benchmark} for pipelines/{profile}.toml; draw them first "
+            f"(`fftool sample-goals --benchmarks {benchmark} -c pipelines/{profile}.toml`)"
+        )
+    return goals
+
+
 def validate(source: ArtifactStore, profile: str, benchmarks: Iterable[str], root: Path | None = None) -> list[str]:
     """Score every shipped model that reads a goal (its CVAE, and its DLow sampler) under the fair protocol on
     its validation windows, with the goals the profile's shipped goal U-Net draws (`learning/fair_validation`;
@@ -400,13 +411,7 @@ def validate(source: ArtifactStore, profile: str, benchmarks: Iterable[str], roo
         models = [m for m in shipped(profile, [benchmark], root) if m.variant is not None and reads_goal(m.variant)]
         if not models:
             continue
-        planned_goals = chain(cfg, "goals", None, benchmark)["goals"]
-        goals = source.lookup("goals", planned_goals.fingerprint)
-        if goals is None:
-            raise FftoolError(
-                f"{source.root} has no goals of {benchmark} for pipelines/{profile}.toml; draw them first "
-                f"(`fftool sample-goals --benchmarks {benchmark} -c pipelines/{profile}.toml`)"
-            )
+        goals = shipped_goals(source, profile, benchmark)
         cvaes = {m.variant: m for m in models if m.kind == "cvae"}
         for model in models:
             check(model, zoo)
