@@ -31,12 +31,11 @@ import torch
 
 from fftool import zoo
 from fftool.artifacts.store import Artifact, ArtifactStore
-from fftool.config import EvaluateConfig, predictor_config, variant_section
+from fftool.config import EvaluateConfig, FairCode, predictor_config, variant_section
 from fftool.dataset.scenes import BENCHMARKS
 from fftool.learning.cvae_model import load_model, scale_output
 from fftool.learning.fair_validation import fair_validation
 from fftool.stages import evaluate
-from fftool.variants import reads_goal
 
 _COLUMNS = {
     "val": ["code", "residual_scale", "val_windows", "fair_min_ade_m", "fair_min_fde_m"],
@@ -44,8 +43,8 @@ _COLUMNS = {
 }
 
 
-def _validation(store: ArtifactStore, goals: Artifact, cvae: Artifact, code: str, scale: float) -> list[Any]:
-    found = fair_validation(store, goals, cvae, None, torch.device("cpu"), code, None, scale)  # type: ignore[arg-type]
+def _validation(store: ArtifactStore, goals: Artifact, cvae: Artifact, code: FairCode, scale: float) -> list[Any]:
+    found = fair_validation(store, goals, cvae, None, torch.device("cpu"), code, None, scale)
     return [found["code"], scale, found["windows"], round(found["min_ade_m"], 4), round(found["min_fde_m"], 4)]
 
 
@@ -74,9 +73,7 @@ def main() -> None:
     for benchmark in benchmarks:
         goals = zoo.shipped_goals(store, args.profile, benchmark)
         for model in zoo.shipped(args.profile, [benchmark]):
-            if model.kind != "cvae" or model.variant is None or not reads_goal(model.variant):
-                continue
-            if load_model(model.artifact, torch.device("cpu")).config.output != "goal_residual":
+            if model.kind != "cvae" or model.artifact.manifest.params.get("output") != "goal_residual":
                 continue
             evaluate_cfg = variant_section(predictor_config(cfg, model.variant), "evaluate")
             assert isinstance(evaluate_cfg, EvaluateConfig)
