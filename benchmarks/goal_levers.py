@@ -110,9 +110,10 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "weight_decay_0.1": (["goal.weight_decay=0.1"], []),  # AdamW's decay 10× the recipe's 0.01
     "weight_decay_0": (["goal.weight_decay=0"], []),
     "epochs_4": (["goal.epochs=4"], []),  # half the cpu recipe's steps, the same cosine compressed
-    "neighbours": ([], ["neighbours"]),  # the window's other walkers and their CV goals as two input channels
+    # The window's other walkers and their CV goals as two input channels (goal.neighbour_channels).
+    "neighbours": (["goal.neighbour_channels=true"], []),
     "recipe_8_argmax_seed1": (["goal.seed=1"], []),  # the pair again from another seed: how large the margin is
-    "neighbours_seed1": (["goal.seed=1"], ["neighbours"]),
+    "neighbours_seed1": (["goal.neighbour_channels=true", "goal.seed=1"], []),
 }
 MODE_RADII = (0, 1, 2)
 
@@ -136,8 +137,6 @@ def _patch(name: str) -> None:
         scenes.SOURCE_SCENE["uni_examples"] = "univ"
     elif name.startswith("place_balance_"):
         _balance_places(float(name.removeprefix("place_balance_")))
-    elif name == "neighbours":
-        _read_neighbours()
     else:
         raise SystemExit(f"unknown patch {name!r}")
 
@@ -170,57 +169,6 @@ def _balance_places(beta: float) -> None:
     goal_stage._trainer = trainer
 
 
-def _read_neighbours(obs_len: int = 8, pred_len: int = 12) -> None:
-    """Give the goal U-Net two more input channels: the other walkers of the same window at the last observed step,
-    and their constant-velocity goals, each a Gaussian of `heatmap_sigma_cells` in the walker's crop (summed, at
-    most 1). A walker is found by its last two observed positions (float32, as every caller converts them), which
-    `load_agent_windows` registers for every agent-window it loads; the others are that window's rows."""
-    import fftool.stages.goal as goal_stage
-
-    if getattr(goal_model.goal_inputs, "reads_neighbours", False):  # patched for an earlier benchmark already
-        return
-    others: dict[bytes, np.ndarray] = {}  # key -> (n, 2, 2): the others' last positions and CV goals
-
-    def key(last_two: np.ndarray) -> bytes:
-        return np.ascontiguousarray(last_two, dtype=np.float32).tobytes()
-
-    def register(data: AgentWindows) -> AgentWindows:
-        last, previous = data.xy[:, obs_len - 1], data.xy[:, obs_len - 2]
-        points = np.stack([last, last + pred_len * (last - previous)], 1)  # (M, 2, 2)
-        window = np.char.add(np.char.add(data.source.astype(str), "|"), data.window_id.astype(str))
-        groups = np.unique(window, return_inverse=True)[1]
-        order = np.argsort(groups, kind="stable")
-        bounds = np.flatnonzero(np.diff(groups[order])) + 1
-        for members in np.split(order, bounds):
-            for i in members:
-                others[key(data.xy[i, obs_len - 2 : obs_len])] = points[members[members != i]]
-        return data
-
-    loader = batches.load_agent_windows
-    batches.load_agent_windows = lambda *args, **kwargs: register(loader(*args, **kwargs))
-    goal_stage.load_agent_windows = batches.load_agent_windows
-    globals()["load_agent_windows"] = batches.load_agent_windows
-    base_inputs, base_channels = goal_model.goal_inputs, goal_model.input_channels
-
-    def inputs(obs, scene, maps, cfg, angle, mirror, pred_len):  # type: ignore[no-untyped-def]
-        x, center, R = base_inputs(obs, scene, maps, cfg, angle, mirror, pred_len)
-        found = [others[key(row)] for row in obs[:, -2:].detach().cpu().numpy()]
-        most = max(1, max(len(f) for f in found))
-        far = np.full((len(found), most, 2, 2), 1e6, dtype=np.float32)  # padding: renders as zero
-        for b, points in enumerate(found):
-            far[b, : len(points)] = points
-        points = torch.as_tensor(far, device=obs.device)
-        channels = []
-        for which in range(2):
-            cells = heatmaps.world_to_cells(points[:, :, which], center, R, cfg.resolution_m, cfg.crop_cells)
-            channels.append(heatmaps.render(cells, cfg.crop_cells, cfg.heatmap_sigma_cells).sum(1).clamp(max=1))
-        return torch.cat([x, torch.stack(channels, 1).to(x.dtype)], 1), center, R
-
-    inputs.reads_neighbours = True  # type: ignore[attr-defined]
-    goal_model.goal_inputs = goal_stage.goal_inputs = inputs
-    goal_stage.input_channels = lambda cfg, obs, maps: base_channels(cfg, obs, maps) + 2
-
-
 def _hold_out(place: str, select_in_scene: bool = False) -> None:
     """Make the goal stage (and this script's scoring) read B's train part without `place`, and `place`'s windows
     of B's train and val parts as the validation part. With `select_in_scene`, the goal stage chooses its best
@@ -242,7 +190,10 @@ def _hold_out(place: str, select_in_scene: bool = False) -> None:
         held = [original(windows, benchmark, p, stride) for p in ("train", "val")]
         held = [w.subset(np.flatnonzero(np.isin(w.source, sources))) for w in held]
         fields = ("xy", "source", "first_step", "window_id", "ped_id", "row")
-        return AgentWindows(*(np.concatenate([getattr(w, f) for w in held]) for f in fields))
+        joined = {f: np.concatenate([getattr(w, f) for w in held]) for f in fields}
+        # window ids count from 0 in each part: the val part's move past the train part's, so windows stay apart
+        joined["window_id"][len(held[0]) :] += held[0].window_id.max(initial=-1) + 1
+        return AgentWindows(**joined)
 
     import fftool.stages.goal as goal_stage
 

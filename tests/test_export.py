@@ -48,7 +48,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Export:
     drawing from its prior, in a file of its own so that the two exports run side by side)."""
     base = tmp_path_factory.mktemp("export")
     store = ArtifactStore(base / "artifacts")
-    cfg = predictor_config(_cfg(make_raw_tree(base / "raw")), "dr")
+    cfg = predictor_config(_cfg(make_raw_tree(base / "raw"), "goal.neighbour_channels=true"), "dr")
     built = pipeline.run(cfg, store, ["dlow", "goal"], benchmark="zara1")
     cvae, dlow, goal = built["cvae"], built["dlow"], built["goal"]
     model = dataclasses.replace(load(cvae.id, root=store.root, dlow=dlow.id), fair_code="mean")

@@ -273,3 +273,70 @@ def test_the_trainer_holds_its_weights_channels_last(inputs: dict) -> None:
     trainer = goal._trainer(TINY, SAMPLING, "zara1", inputs["windows"], inputs["maps"], torch.device("cpu"))
     first = trainer.model.encoder[0][0].weight
     assert first.is_contiguous(memory_format=torch.channels_last) and not first.is_contiguous()
+
+
+def test_neighbours_are_the_other_rows_of_each_window_and_a_subset_keeps_them() -> None:
+    xy = np.arange(6 * 20 * 2, dtype=np.float64).reshape(6, 20, 2)
+    found = goal_model.Neighbours.of(xy, np.array([3, 1, 3, 2, 3, 1]))
+    assert found.rows.tolist() == [[2, 4], [5, -1], [0, 4], [-1, -1], [0, 2], [1, -1]]
+    kept = found.subset(np.array([4, 3]))  # row 4's others, 0 and 2, are not in the subset but stay in view
+    observed = kept.observed(slice(None), 8)
+    assert observed.shape == (2, 2, 8, 2)
+    torch.testing.assert_close(observed[0], torch.as_tensor(xy[[0, 2], :8], dtype=torch.float32))
+    assert (observed[1] == goal_model.FAR_M).all()  # a walker alone in its window: padding only
+    backwards = kept.observed(slice(None), 8, reverse=torch.tensor([True, False]))
+    torch.testing.assert_close(backwards[0], torch.as_tensor(xy[[0, 2], ::-1][:, :8].copy(), dtype=torch.float32))
+    assert kept.subset(np.array([1])).observed(slice(None), 8).shape == (1, 1, 8, 2)  # as wide as its crowd
+
+
+def test_the_neighbour_channels_mark_where_the_others_are_and_where_they_head() -> None:
+    """A walker standing at the origin (0.5 m cells, crop 16: cell (8, 8)); another 2 m along x and 1 m along y,
+    walking 0.05 m per step along y: it stands at cell (col 12, row 10), its constant-velocity goal 12 · 0.05 m
+    further at (12, 11.2). A padding slot draws nothing; two walkers on one cell make at most 1."""
+    steps = torch.arange(8.0)[:, None]
+    other = torch.tensor([2.0, 1.0]) - (7 - steps) * torch.tensor([0.0, 0.05])
+    padding = torch.full((8, 2), goal_model.FAR_M)
+    cfg = TINY.model_copy(update={"neighbour_channels": True})
+    maps = SceneMaps(torch.zeros(1, 2, 4, 4), torch.zeros(1, 2), 0.5, ())
+    zeros, scene = torch.zeros(2), torch.zeros(2, dtype=torch.long)
+    others = torch.stack([torch.stack([other, padding]), torch.stack([other, other])])  # (2 crops, 2 slots, 8, 2)
+    x, _, _ = goal_model.goal_inputs(torch.zeros(2, 8, 2), scene, maps, cfg, zeros, zeros.bool(), 12, others)
+    assert x.shape == (2, 8 + 2 + 2, 16, 16)
+    here, heading = x[0, 8], x[0, 9]
+    assert here[10, 12] == pytest.approx(1.0) and here.sum() == pytest.approx(2 * torch.pi, rel=1e-3)
+    found = softargmax(torch.log(torch.stack([here, heading]).clamp_min(1e-30)))
+    torch.testing.assert_close(found, torch.tensor([[12.0, 10.0], [12.0, 11.2]]), atol=1e-3, rtol=0)
+    assert x[1, 8].max() == 1.0 and x[1, 8].sum() < x[0, 8].sum() * 2  # summed, then at most 1
+    with pytest.raises(ValueError, match="neighbour_channels"):
+        goal_model.goal_inputs(torch.zeros(2, 8, 2), scene, maps, cfg, zeros, zeros.bool(), 12)
+
+
+@pytest.mark.parametrize("reversal", [0.0, 1.0])
+def test_training_crops_read_their_windows_other_walkers_played_as_their_own_path(
+    inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, reversal: float
+) -> None:
+    """Every other walker a training crop reads stands where a window of the train part stands at the crop's last
+    observed step: step 8 of 20, or step 13 when the window is played backwards; never at the crop's own spot."""
+    seen: list[tuple[torch.Tensor, torch.Tensor]] = []
+    original = goal.goal_inputs
+
+    def spy(obs: torch.Tensor, *args: object):  # type: ignore[no-untyped-def]
+        others = args[-1]
+        assert isinstance(others, torch.Tensor)
+        seen.append((obs[:, -1].clone(), others[:, :, -1].clone()))
+        return original(obs, *args)
+
+    monkeypatch.setattr(goal, "goal_inputs", spy)
+    cfg = TINY.model_copy(update={"epochs": 1, "time_reversal": reversal, "neighbour_channels": True})
+    _train(inputs, tmp_path, f"others{reversal}", cfg)
+    saved = torch.load(tmp_path / f"others{reversal}" / "model.pt", weights_only=True)
+    assert saved["in_channels"] == 8 + 2 + 6
+    windows = torch.as_tensor(load_agent_windows(inputs["windows"], "zara1", "train").xy, dtype=torch.float32)
+    step = 12 if reversal else 7
+    real = [others[:, :, 0] < goal_model.FAR_M for _, others in seen]
+    points = torch.cat([others[keep] for (_, others), keep in zip(seen, real)])
+    assert len(points) > sum(len(own) for own, _ in seen)  # the tiny data's windows hold several walkers
+    distance = torch.cdist(points, windows[:, step], compute_mode="donot_use_mm_for_euclid_dist").min(1).values
+    assert distance.max() < 1e-4
+    apart = [(others - own[:, None]).norm(dim=-1)[keep] for (own, others), keep in zip(seen, real)]
+    assert torch.cat(apart).min() > 0  # a crop's others never include itself

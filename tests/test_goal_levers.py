@@ -44,6 +44,8 @@ def test_a_held_out_place_leaves_training_and_is_the_validation(levers: ModuleTy
     held = [w.source == "biwi_hotel" for w in parts.values()]
     assert len(val) == sum(int(h.sum()) for h in held)  # the place's windows of both parts, nothing else
     assert sorted(val.row) == sorted(np.concatenate([w.row[h] for w, h in zip(parts.values(), held)]))
+    windows_of = [set(w.window_id[h]) for w, h in zip(parts.values(), held)]
+    assert len(set(val.window_id)) == sum(map(len, windows_of))  # the two parts' windows stay apart
     with pytest.raises(SystemExit, match="no test part"):
         goal_stage.load_agent_windows(windows, "eth", "test")
 

@@ -20,6 +20,7 @@ from fftool.artifacts.store import ArtifactStore
 from fftool.cli import app
 from fftool.config import load_config, predictor_config
 from fftool.errors import FftoolError, IntegrityError
+from fftool.learning import goal_model
 from fftool.learning.fair_validation import fair_validation
 from fftool.online import OnlinePredictor
 from fftool.reporting.summaries import zoo_rows
@@ -69,6 +70,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     pipelines = base / "pipelines"
     pipelines.mkdir()
     text = TINY_PIPELINE.format(raw=str(raw), scenes=str(base / "scenes"))
+    text = text.replace("[goal]\n", "[goal]\nneighbour_channels = true\n")  # as the shipped cpu goal U-Nets
     (pipelines / "tiny.toml").write_text(text.replace("[dlow]\n", '[dlow]\nvariants = ["baseline"]\n'))
     store = ArtifactStore(base / "trained")
     cfg = load_config(pipelines / "tiny.toml")
@@ -349,6 +351,26 @@ def test_passed_goals_come_before_a_shipped_goal_unet_however_the_predictor_was_
         assert np.allclose(result.goals[0], [9.0, -4.0])  # every sample of agent 1 heads to the passed goal
         assert not np.allclose(result.goals[1], result.goals[1][0])  # agent 2: K goals from the U-Net
     assert np.array_equal(by_name.update(3.2, {1: (3.2, 0.0)}, goals=passed).goals[0], np.tile([9.0, -4.0], (5, 1)))
+
+
+def test_a_goal_unet_reading_the_other_walkers_reads_only_its_own_scenes(tiny: dict[str, Path]) -> None:
+    """Predicting several scenes at once (`predict --at all`), each agent's goal map reads the other walkers of its
+    own scene: the maps are those of each scene alone, and not those of everyone taken as one scene."""
+    zoo.pack(ArtifactStore(tiny["trained"]), "tiny", ["zara1"])
+    sampler = api.load_goal_sampler("tiny/zara1/dr")
+    assert sampler.config.neighbour_channels
+    rng = np.random.default_rng(3)
+    past = np.cumsum(rng.normal(0.3, 0.1, (5, 8, 2)), 1) + rng.normal(0, 1.5, (5, 1, 2))
+    window = np.array([0, 0, 1, 1, 1])
+    others = goal_model.Neighbours.of(past, window).observed(slice(None), 8)
+    xy = torch.as_tensor(past, dtype=torch.float32)
+    together = sampler.maps(xy, 12, others)[0]
+    alone = torch.cat([sampler.maps(xy[torch.as_tensor(window == w)], 12)[0] for w in (0, 1)])
+    torch.testing.assert_close(together, alone, atol=1e-5, rtol=0)
+    assert (sampler.maps(xy, 12)[0] - together).abs().max() > 1e-4  # one scene of five reads other walkers
+    goals = sampler.sample(past, 4, 0, 12, torch.device("cpu"), window)
+    first = sampler.sample(past[:2], 4, 0, 12, torch.device("cpu"))
+    np.testing.assert_allclose(goals[:2, 0], first[:, 0], atol=1e-5)  # the mode: no draw involved
 
 
 def test_predict_the_api_and_the_online_predictor_read_no_future_position(tiny: dict[str, Path]) -> None:

@@ -246,7 +246,9 @@ def load(
 class DrawsGoals(Protocol):
     """What draws K goals per observed path: a `GoalSampler`, or an export's goal U-Net (fftool.exported)."""
 
-    def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray: ...
+    def sample(
+        self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device, window: np.ndarray | None = None
+    ) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -259,18 +261,29 @@ class GoalSampler:
     sampling: GoalsConfig
     in_channels: int
 
-    def maps(self, obs: torch.Tensor, pred_len: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def maps(
+        self, obs: torch.Tensor, pred_len: int, others: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The goal maps' logits (M, S, S), crop centres (M, 2) and rotations (M, 2, 2) of observed paths obs
-        (M, T, 2) metres: the network's part, which `fftool export` writes as a graph."""
-        channels = self.in_channels - obs.shape[1] - int(self.config.cv_channel)
+        (M, T, 2) metres: the network's part, which `fftool export` writes as a graph. A goal U-Net that reads
+        the other walkers reads `others` (M, N, T, 2; `goal_model.Neighbours`), or else takes the M paths for
+        one scene."""
+        channels = self.in_channels - goal_model.input_channels(self.config, obs.shape[1], 0)
         blank = SceneMaps(torch.zeros(1, channels, 1, 1), torch.zeros(1, 2), 1.0, ()).to(obs.device)
         scene = torch.zeros(obs.shape[0], dtype=torch.long, device=obs.device)
-        return goal_model.goal_map(self.net, obs, scene, blank, self.config, pred_len)
+        if self.config.neighbour_channels and others is None:
+            others = goal_model.scene_others(obs)
+        return goal_model.goal_map(self.net, obs, scene, blank, self.config, pred_len, others)
 
-    def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
-        """(M, K, 2) goals for observed paths past (M, T, 2)."""
+    def sample(
+        self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device, window: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(M, K, 2) goals for observed paths past (M, T, 2) of the scenes `window` (M,) (default: one scene)."""
+        others = None
+        if self.config.neighbour_channels and window is not None:
+            others = goal_model.Neighbours.of(past, window).observed(slice(None), past.shape[1]).to(device)
         with torch.no_grad():
-            maps = self.maps(torch.as_tensor(past, dtype=torch.float32, device=device), pred_len)
+            maps = self.maps(torch.as_tensor(past, dtype=torch.float32, device=device), pred_len, others)
             return draw_goals(maps, self.config, self.sampling, k, seed).cpu().numpy()
 
 
@@ -382,7 +395,7 @@ def draw_futures(
     if reads_goal(model.variant):
         chosen, all_passed = goals_per_sample(
             model.variant, labels, found.xy, goals, goal_sampler, k=k, seed=seed, pred_len=model.pred_len,
-            device=model.device,
+            device=model.device, window=found.window,
         )  # fmt: skip
         if all_passed:  # every agent's goal is known: one goal for all K samples
             given = chosen[:, 0]
@@ -416,17 +429,19 @@ def goals_per_sample(
     seed: int,
     pred_len: int,
     device: torch.device,
+    window: np.ndarray | None = None,
 ) -> tuple[np.ndarray, bool]:
     """(M, K, 2) the goal each of K samples of a goal variant steers toward, for agents `labels` (M,) observed
-    at `past` (M, T, 2), and whether every agent's goal was passed. A passed goal comes first (all K samples
-    head to it); the others get the goal sampler's K goals (sample k, goal k), or an error names them."""
+    at `past` (M, T, 2) in the scenes `window` (M,) (default: one scene), and whether every agent's goal was
+    passed. A passed goal comes first (all K samples head to it); the others get the goal sampler's K goals
+    (sample k, goal k), or an error names them."""
     passed = np.array([goals is not None and label in goals for label in labels], bool)
     given = np.array([goals[label] if ok else (np.nan, np.nan) for label, ok in zip(labels, passed)], np.float64)
     given = given.reshape(len(labels), 2)
     if passed.all():
         return np.repeat(given[:, None], k, 1), True
     if goal_sampler is not None:
-        sampled = goal_sampler.sample(past, k, seed, pred_len, device)
+        sampled = goal_sampler.sample(past, k, seed, pred_len, device, window)
         sampled[passed] = given[passed, None].astype(sampled.dtype)
         return sampled, False
     if goals is not None:

@@ -185,6 +185,9 @@ class GoalConfig(_Section):
     warmup_fraction: float = Field(0.0, ge=0, lt=1)
     # An extra input heat map at the constant-velocity goal (not in Goal-SAR; docs/goal.md).
     cv_channel: bool = False
+    # Two extra input heat maps: where the scene's other walkers are at the last observed step, and their
+    # constant-velocity goals (not in Goal-SAR; docs/goal.md).
+    neighbour_channels: bool = False
     # Turn every crop so the last observed velocity points along +col (not in Goal-SAR); training then
     # augments with the mirror only.
     align_heading: bool = False

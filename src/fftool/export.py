@@ -273,7 +273,10 @@ def _goal_manifest(goal_sampler: Any, obs_len: int) -> dict[str, Any]:
     cfg, S = goal_sampler.config, goal_sampler.config.crop_cells
     return {
         "file": GOAL_ONNX_FILE,
-        "inputs": {"past": f"(A, {obs_len}, 2) float32, world metres, the observed positions (oldest first)"},
+        "inputs": {
+            "past": f"(A, {obs_len}, 2) float32, world metres, the observed positions (oldest first) of one scene"
+            + (": each agent's map reads where the others are and head" if cfg.neighbour_channels else "")
+        },
         "outputs": {
             "logits": f"(A, {S}, {S}) float32, each agent's goal map: logit of the goal's cell (row, col)",
             "centre": "(A, 2) float32, world metres, the crop's centre (the last observed position)",

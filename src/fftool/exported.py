@@ -33,10 +33,20 @@ class ExportedGoalSampler:
     config: GoalConfig
     sampling: GoalsConfig
 
-    def sample(self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device) -> np.ndarray:
-        """(M, K, 2) goals for observed paths past (M, T, 2) (pred_len is the graph's own)."""
-        maps = self.session.run(None, {"past": np.asarray(past, np.float32)})
-        return draw_goals(tuple(map(torch.as_tensor, maps)), self.config, self.sampling, k, seed).numpy()
+    def sample(
+        self, past: np.ndarray, k: int, seed: int, pred_len: int, device: torch.device, window: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(M, K, 2) goals for observed paths past (M, T, 2) of the scenes `window` (M,) (default: one scene;
+        pred_len is the graph's own). The graph takes one scene at a time: a goal U-Net that reads the other
+        walkers reads every other path of the call."""
+        past = np.asarray(past, np.float32)
+        scenes = [np.arange(len(past))]
+        if self.config.neighbour_channels and window is not None:
+            scenes = [np.flatnonzero(window == w) for w in np.unique(window)]
+        parts = [self.session.run(None, {"past": past[rows]}) for rows in scenes]
+        order = np.argsort(np.concatenate(scenes), kind="stable")
+        maps = tuple(torch.as_tensor(np.concatenate(arrays)[order]) for arrays in zip(*parts))
+        return draw_goals(maps, self.config, self.sampling, k, seed).numpy()
 
 
 @dataclass(frozen=True)

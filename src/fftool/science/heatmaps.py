@@ -43,6 +43,15 @@ def render(cells: Tensor, size: int, sigma: float) -> Tensor:
     return torch.exp(-(dx + dy) / (2 * sigma**2))
 
 
+def render_sum(cells: Tensor, size: int, sigma: float) -> Tensor:
+    """(B, P, 2) cell coordinates -> (B, S, S) the sum of their `render` Gaussians, as one batched product of
+    each Gaussian's row and column factors: memory B·P·S instead of B·P·S² (P can be a crowd)."""
+    grid = torch.arange(size, device=cells.device, dtype=cells.dtype)
+    columns = torch.exp(-((grid - cells[..., 0, None]) ** 2) / (2 * sigma**2))  # (B, P, S)
+    rows = torch.exp(-((grid - cells[..., 1, None]) ** 2) / (2 * sigma**2))  # (B, P, S)
+    return rows.transpose(1, 2) @ columns
+
+
 def sample_scene(
     maps: Tensor, origins: Tensor, map_res: float, scene: Tensor, center: Tensor, R: Tensor, res: float, size: int
 ) -> Tensor:

@@ -23,6 +23,7 @@ from fftool.errors import UsageError
 from fftool.learning import distributed
 from fftool.learning.batches import AgentWindows, SceneMaps, load_agent_windows
 from fftool.learning.goal_model import (
+    Neighbours,
     build_model,
     evaluate,
     goal_inputs,
@@ -68,6 +69,8 @@ class _Trainer:
     train_scene: torch.Tensor  # each training window's index into `maps`
     val: AgentWindows
     val_scene: torch.Tensor
+    train_neighbours: Neighbours | None  # with goal.neighbour_channels: the other walkers of each window
+    val_neighbours: Neighbours | None
     maps: SceneMaps
     obs_len: int
     pred_len: int
@@ -129,9 +132,11 @@ class _Trainer:
                 if not cfg.augment:
                     mirror = torch.zeros_like(mirror)
                 scene = torch.where(blank, len(self.maps.names), self.train_scene[index]).to(device)
-                past = xy[:, : self.obs_len]
+                past, others = xy[:, : self.obs_len], None
+                if self.train_neighbours is not None:  # played backwards with the crop's own path
+                    others = self.train_neighbours.observed(index, self.obs_len, reverse).to(device)
                 x, center, R = goal_inputs(
-                    past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len
+                    past, scene, self.maps, cfg, angle.to(device), mirror.to(device), self.pred_len, others
                 )  # fmt: skip
                 future = xy[:, self.future_index]  # (b, supervised steps, 2), the goal last
                 terms = goal_loss(self.net(x), world_to_cells(future, center, R, cfg.resolution_m, cfg.crop_cells), cfg)
@@ -162,6 +167,7 @@ class _Trainer:
             cfg.seed,
             self.obs_len,
             self.pred_len,
+            self.val_neighbours,
         )
         return {f"val_goal_fde@{k}_m": fde_k, "val_goal_fde@1_m": fde_1}
 
@@ -179,8 +185,13 @@ def _trainer(
         )
     train = load_agent_windows(windows, benchmark, "train", stride=cfg.train_stride)
     val = load_agent_windows(windows, benchmark, "val")
+    # each window's other walkers, found before the validation subset so that they all stay in view
+    train_neighbours = Neighbours.of(train.xy, train.window_id) if cfg.neighbour_channels else None
+    val_neighbours = Neighbours.of(val.xy, val.window_id) if cfg.neighbour_channels else None
     if cfg.val_max and len(val) > cfg.val_max:
-        val = val.subset(validation_subset(len(val), cfg.val_max, cfg.seed))
+        chosen = validation_subset(len(val), cfg.val_max, cfg.seed)
+        val = val.subset(chosen)
+        val_neighbours = None if val_neighbours is None else val_neighbours.subset(chosen)
     scene_maps = load_goal_scenes(maps, windows, benchmark, cfg).to(device)
     # Channels-last weights make every convolution run channels-last: on a CPU its training step is about 1.5×
     # as fast for this thin U-Net (benchmarks/bench_goal_step.py). The saved weights load into any layout.
@@ -197,6 +208,8 @@ def _trainer(
         train_scene=goal_scene_index(scene_maps, train, cfg, cross_fit=True),
         val=val,
         val_scene=goal_scene_index(scene_maps, val, cfg, cross_fit=False),
+        train_neighbours=train_neighbours,
+        val_neighbours=val_neighbours,
         maps=scene_maps,
         obs_len=obs_len,
         pred_len=pred_len,
