@@ -441,11 +441,14 @@ def _val_fde(  # type: ignore[no-untyped-def]
     gen, cv_gen = generator(goal_cfg.seed, device), generator(sampling.seed, device)
     scene = goal_scene_index(scene_maps, val, goal_cfg, cross_fit=False).to(device)
     errors: dict[int, list[torch.Tensor]] = {radius: [] for radius in MODE_RADII}
+    neighbours = goal_model.Neighbours.of(val.xy, val.window_id) if goal_cfg.neighbour_channels else None
     for start in range(0, len(val), 1024):
-        xy = torch.as_tensor(val.xy[start : start + 1024], dtype=torch.float32, device=device)
+        index = slice(start, start + 1024)
+        xy = torch.as_tensor(val.xy[index], dtype=torch.float32, device=device)
         zeros = torch.zeros(len(xy), device=device)
+        others = None if neighbours is None else neighbours.observed(index, obs_len).to(device)
         x, center, R = goal_model.goal_inputs(
-            xy[:, :obs_len], scene[start : start + 1024], scene_maps, goal_cfg, zeros, zeros.bool(), pred_len
+            xy[:, :obs_len], scene[index], scene_maps, goal_cfg, zeros, zeros.bool(), pred_len, others
         )
         logits = model(x)[:, -1]
         cells = heatmaps.sample_goals(

@@ -111,3 +111,27 @@ def test_a_place_s_share_of_the_draws_is_its_windows_to_the_one_minus_beta(lever
     shares = np.array([weights[places == p].sum() for p in ("univ", "zara", "eth")]) / weights.sum()
     expected = np.array([400.0, 100.0, 4.0]) ** (1 - beta)
     np.testing.assert_allclose(shares, expected / expected.sum())
+
+
+def test_the_scripts_scoring_reads_the_other_walkers_as_the_goal_stage_does(
+    levers: ModuleType, built_store: ArtifactStore
+) -> None:
+    """With `goal.neighbour_channels` the script's own scoring gives each window's crops its other walkers: its
+    mode (goal 1, no random draw) is the goal stage's, on the held-out place whose two parts are joined."""
+    from fftool.config import GoalConfig, GoalsConfig
+    from fftool.learning import goal_model
+    from fftool.learning.batches import SceneMaps
+    from fftool.learning.scene_prior import goal_scene_index
+
+    windows = built_store.list("windows")[0]
+    levers._hold_out("hotel")
+    val = levers.load_agent_windows(windows, "eth", "val")
+    cfg = GoalConfig(crop_cells=16, widths=(4, 8), neighbour_channels=True, cv_channel=True)
+    sampling = GoalsConfig(k=3, samples=50, kmeans_iterations=2)
+    torch.manual_seed(0)
+    model = goal_model.build_model(cfg, goal_model.input_channels(cfg, 8, 2)).eval()
+    maps = SceneMaps(torch.zeros(1, 2, 1, 1), torch.zeros(1, 2), 1.0, ())
+    _, mode = levers._val_fde(model, val, maps, cfg, sampling, 8, 12, torch.device("cpu"))[0]
+    scene = goal_scene_index(maps, val, cfg, cross_fit=False)
+    _, stage_mode = goal_model.evaluate(model, val, scene, maps, cfg, sampling, torch.device("cpu"), 0, 8, 12)
+    assert mode == pytest.approx(stage_mode, abs=1e-5)
