@@ -52,10 +52,14 @@ def main() -> None:
         index = torch.randint(len(xy_all), (goal.batch_size,), generator=gen)
         xy, zeros = xy_all[index], torch.zeros(goal.batch_size)
         mirror = torch.rand(goal.batch_size, generator=gen) < 0.5
+        neighbours = trainer.train_neighbours  # the profile's goal U-Net may read the other walkers
+        others = None if neighbours is None else neighbours.observed(index, obs_len)
         outputs = {}
         for name in ["default", "channels_last"] if step % 2 else ["channels_last", "default"]:  # alternate
             started = time.perf_counter()
-            x, center, R = goal_inputs(xy[:, :obs_len], scenes[index], scene_maps, goal, zeros, mirror, pred_len)
+            x, center, R = goal_inputs(
+                xy[:, :obs_len], scenes[index], scene_maps, goal, zeros, mirror, pred_len, others
+            )  # fmt: skip
             logits = models[name](x)
             future = world_to_cells(xy[:, obs_len + pred_len - 1 :], center, R, goal.resolution_m, goal.crop_cells)
             loss = goal_loss(logits, future, goal)[0]
