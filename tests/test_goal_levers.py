@@ -14,7 +14,10 @@ import torch
 
 from fftool.artifacts.schema import TRACKS_FILE
 from fftool.artifacts.store import ArtifactStore
-from fftool.learning import batches
+from fftool.config import GoalConfig, GoalsConfig
+from fftool.learning import batches, goal_model
+from fftool.learning.batches import SceneMaps
+from fftool.learning.scene_prior import goal_scene_index
 from fftool.stages import goal as goal_stage
 
 SCRIPT = Path(__file__).parents[1] / "benchmarks" / "goal_levers.py"
@@ -118,11 +121,6 @@ def test_the_scripts_scoring_reads_the_other_walkers_as_the_goal_stage_does(
 ) -> None:
     """With `goal.neighbour_channels` the script's own scoring gives each window's crops its other walkers: its
     mode (goal 1, no random draw) is the goal stage's, on the held-out place whose two parts are joined."""
-    from fftool.config import GoalConfig, GoalsConfig
-    from fftool.learning import goal_model
-    from fftool.learning.batches import SceneMaps
-    from fftool.learning.scene_prior import goal_scene_index
-
     windows = built_store.list("windows")[0]
     levers._hold_out("hotel")
     val = levers.load_agent_windows(windows, "eth", "val")
