@@ -14,6 +14,9 @@ from fftool.reporting.doc_tables import (
     retrain_table,
     seed_gap_table,
     seed_table,
+    seeded_lever_fde,
+    seeded_lever_gap,
+    seeded_levers_table,
     stage_seconds,
     targets_table,
     training_times_table,
@@ -171,3 +174,37 @@ def test_an_output_lever_is_tabulated_against_the_shipped_model_per_code(tmp_pat
     assert lines[3].startswith("| goal_residual | prior draws | 0.200 / 0.400 | 0.210 / 0.400 |")
     assert lines[3].endswith("| **0.2200 / 0.4000** |")  # (0.20 + 0.21 + 0.22 + 0.23 + 0.24) / 5
     assert lines[4] == "| goal_residual | prior mean |" + " 0.100 / 0.300 |" * 5 + " **0.1000 / 0.3000** |"
+
+
+def test_a_seeded_lever_is_its_mean_over_seeds_against_the_reference_with_twice_the_standard_error(
+    tmp_path: Path,
+) -> None:
+    columns = ["lever", "benchmark", "mode_radius_cells", "val_goal_fde@20_m"]
+    rows = [
+        ("ref_s0 best_epoch=val_part", "zara1", 0, 0.20),  # averages 0.25, 0.27, 0.26: mean 0.26, sd 0.01
+        ("ref_s0 best_epoch=val_part", "hotel", 0, 0.30),
+        ("ref_s1 best_epoch=val_part", "zara1", 0, 0.22),
+        ("ref_s1 best_epoch=val_part", "hotel", 0, 0.32),
+        ("ref_s2 best_epoch=val_part", "zara1", 0, 0.21),
+        ("ref_s2 best_epoch=val_part", "hotel", 0, 0.31),
+        ("ref_s2 best_epoch=val_part", "hotel", 2, 9.00),  # another mode: not read
+        ("new_s0 best_epoch=val_part", "zara1", 0, 0.18),  # averages 0.23, 0.25, 0.24: mean 0.24, sd 0.01
+        ("new_s0 best_epoch=val_part", "hotel", 0, 0.28),
+        ("new_s1 best_epoch=val_part", "zara1", 0, 0.20),
+        ("new_s1 best_epoch=val_part", "hotel", 0, 0.30),
+        ("new_s2 best_epoch=val_part", "zara1", 0, 0.19),
+        ("new_s2 best_epoch=val_part", "hotel", 0, 0.29),
+    ]
+    csv = tmp_path / "levers.csv"
+    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    table = seeded_levers_table(csv, {"ref": "recipe", "new": "lever"}, [0, 1, 2], ["zara1", "hotel"]).splitlines()
+    assert table[2] == "| recipe | 0.210 ± 0.010 | 0.310 ± 0.010 | 0.250 / 0.270 / 0.260 | **0.2600 ± 0.0100** |  |"
+    # the difference −0.02; its standard error √(0.01²/3 · 2) = 0.00816, twice that 0.0163
+    assert table[3] == (
+        "| lever | 0.190 ± 0.010 | 0.290 ± 0.010 | 0.230 / 0.250 / 0.240 | **0.2400 ± 0.0100** | -0.0200 ± 0.0163 |"
+    )
+    gap, se = seeded_lever_gap(
+        seeded_lever_fde(csv, "new", [0, 1, 2], ["zara1", "hotel"], " best_epoch=val_part"),
+        seeded_lever_fde(csv, "ref", [0, 1, 2], ["zara1", "hotel"], " best_epoch=val_part"),
+    )
+    assert abs(gap + 0.02) < 1e-12 and abs(se - (2 * 0.01**2 / 3) ** 0.5) < 1e-12

@@ -233,6 +233,59 @@ def lever_average(levers_csv: Path | str, lever: str, radius: int) -> float:
     return float(rows.loc[list(BENCHMARKS), "val_goal_fde@20_m"].mean())
 
 
+def seeded_lever_fde(
+    levers_csv: Path | str, arm: str, seeds: Sequence[int], benchmarks: Sequence[str], suffix: str, radius: int = 0
+) -> pd.DataFrame:
+    """goal-FDE@20 (m) of lever `arm` trained from each seed: one row per seed, one column per benchmark (rows
+    `<arm>_s<seed><suffix>` of benchmarks/goal_levers.py's CSV, mode over `radius` cells); a missing run is NaN."""
+    frame = pd.read_csv(levers_csv)
+    frame = frame[frame["mode_radius_cells"] == radius].drop_duplicates(["lever", "benchmark"], keep="last")
+    values = frame.set_index(["lever", "benchmark"])["val_goal_fde@20_m"]
+    return pd.DataFrame(
+        [[values.get((f"{arm}_s{seed}{suffix}", b), float("nan")) for b in benchmarks] for seed in seeds],
+        index=pd.Index(list(seeds), name="seed"),
+        columns=list(benchmarks),
+    )
+
+
+def seeded_lever_gap(lever: pd.DataFrame, reference: pd.DataFrame) -> tuple[float, float]:
+    """The lever's mean over seeds of the benchmarks' average goal-FDE@20 minus the reference's (m), and the
+    standard error of that difference, √(s²_lever / n_lever + s²_reference / n_reference)."""
+    a, b = lever.mean(axis=1), reference.mean(axis=1)
+    return float(a.mean() - b.mean()), float((a.var() / len(a) + b.var() / len(b)) ** 0.5)
+
+
+def seeded_levers_table(
+    levers_csv: Path | str,
+    arms: dict[str, str],
+    seeds: Sequence[int],
+    benchmarks: Sequence[str],
+    suffix: str = " best_epoch=val_part",
+    radius: int = 0,
+) -> str:
+    """Each arm of `arms` (name -> label, the first the reference) trained from every seed: per benchmark the
+    mean ± sample deviation of goal-FDE@20 over the seeds, each seed's benchmark average, their mean ± deviation,
+    and the difference from the reference's mean with twice its standard error (`seeded_lever_gap`)."""
+    runs = {arm: seeded_lever_fde(levers_csv, arm, seeds, benchmarks, suffix, radius) for arm in arms}
+    reference = runs[next(iter(arms))]
+    rows = []
+    for arm, label in arms.items():
+        fde = runs[arm]
+        per_seed = fde.mean(axis=1)
+        gap, se = seeded_lever_gap(fde, reference)
+        rows.append([
+            label,
+            *(f"{fde[b].mean():.3f} ± {fde[b].std():.3f}" for b in benchmarks),
+            " / ".join(f"{v:.3f}" for v in per_seed),
+            f"**{per_seed.mean():.4f} ± {per_seed.std():.4f}**",
+            "" if arm == next(iter(arms)) else f"{gap:+.4f} ± {2 * se:.4f}",
+        ])  # fmt: skip
+    seeds_text = ", ".join(str(s) for s in seeds)
+    header = ["arm (held-out goal-FDE@20, m)", *benchmarks, f"average, seeds {seeds_text}", "mean ± deviation",
+              "against the first row ± 2 SE"]  # fmt: skip
+    return _markdown(header, rows)
+
+
 def _settled_below(paired: pd.DataFrame, variant: str, metric: str) -> bool:
     """Whether the report's paired bootstrap puts the whole all-scenes interval of variant − AgentFormer below 0."""
     rows = paired[paired["method"].str.startswith(PAPER_NAMES[variant]) & (paired["metric"] == metric)]
