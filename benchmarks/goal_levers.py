@@ -116,11 +116,12 @@ LEVERS: dict[str, tuple[list[str], list[str]]] = {
     "neighbours_seed1": (["goal.neighbour_channels=true", "goal.seed=1"], []),
 }
 # Three trainings per arm, all on one machine in one batch: the cpu recipe, and the recipe with time reversal
-# (p = 0.5) or the target's σ at half a cell, from seeds 0, 1 and 2.
+# (p = 0.5), the target's σ at half a cell or walking speeds scaled (goal.speed_scale), from seeds 0, 1 and 2.
 for _seed in range(3):
     LEVERS[f"recipe_s{_seed}"] = ([f"goal.seed={_seed}"], [])
     LEVERS[f"reversal_s{_seed}"] = (["goal.time_reversal=0.5", f"goal.seed={_seed}"], [])
     LEVERS[f"target_sigma_s{_seed}"] = (["goal.target_sigma_cells=0.5", f"goal.seed={_seed}"], [])
+    LEVERS[f"speed_s{_seed}"] = (["goal.speed_scale=1.25", f"goal.seed={_seed}"], [])  # walkers 0.8 to 1.25× as fast
 MODE_RADII = (0, 1, 2)
 
 # --holdout: the place each benchmark's validation holds out of its training part: one of its own training places,

@@ -227,6 +227,37 @@ def test_time_reversal_makes_the_first_observed_position_the_goal(
     assert seen.shape[0] > 0 and distance.max() < 1e-4
 
 
+def test_speed_scaling_keeps_the_last_observed_position_and_scales_every_displacement() -> None:
+    xy = torch.tensor([[[0.0, 0.0], [1.0, 0.0], [2.0, 1.0], [4.0, 1.0]]])  # observed 3, then one future step
+    scaled = goal_model.speed_scaled(xy, torch.tensor([0.5]), obs_len=3)
+    expected = torch.tensor([[[1.0, 0.5], [1.5, 0.5], [2.0, 1.0], [3.0, 1.0]]])  # about (2, 1), halved
+    assert torch.equal(scaled, expected)
+    assert torch.equal(goal_model.speed_scaled(xy, torch.ones(1), obs_len=3), xy)
+
+
+@pytest.mark.parametrize("speed_scale", [1.0, 2.0])
+def test_speed_scale_trains_with_factors_drawn_in_its_range(
+    inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, speed_scale: float
+) -> None:
+    """Every training window is scaled by a factor in [1 / speed_scale, speed_scale], spread over that range;
+    off (1), every factor is 1."""
+    factors: list[torch.Tensor] = []
+    original = goal.speed_scaled
+
+    def spy(xy: torch.Tensor, scale: torch.Tensor, obs_len: int) -> torch.Tensor:
+        factors.append(scale.clone())
+        return original(xy, scale, obs_len)
+
+    monkeypatch.setattr(goal, "speed_scaled", spy)
+    _train(inputs, tmp_path, f"speed{speed_scale}", TINY.model_copy(update={"epochs": 1, "speed_scale": speed_scale}))
+    seen = torch.cat(factors)
+    assert seen.numel() > 20 and seen.min() >= 1 / speed_scale - 1e-6 and seen.max() <= speed_scale + 1e-6
+    if speed_scale == 1:
+        assert torch.equal(seen, torch.ones_like(seen))
+    else:  # log-uniform: about half below 1, and both ends of the range reached
+        assert 0.25 < (seen < 1).float().mean() < 0.75 and seen.min() < 0.6 and seen.max() > 1.6
+
+
 def test_map_dropout_gives_a_share_of_training_crops_the_zero_scene(
     raw_tree: Path, built_store: ArtifactStore, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

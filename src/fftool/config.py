@@ -200,6 +200,10 @@ class GoalConfig(_Section):
     scene_prior: Literal["none", "occupancy"] = "none"
     # Share of training windows played backwards (the goal becomes the first observed position; Goal-SAR: 0.5).
     time_reversal: float = Field(0.0, ge=0, le=1)
+    # Walking-speed augmentation (not in Goal-SAR): each training window's positions scaled about its last observed
+    # one by s, log-uniform in [1 / speed_scale, speed_scale], so the module meets slower and faster walkers in the
+    # same places (the map keeps its size). 1 = off.
+    speed_scale: float = Field(1.0, ge=1)
     # Share of training windows whose crop reads no scene map (all map channels zero), so the module also
     # learns the map-less inputs `fftool predict` and the API give it (not in Goal-SAR; docs/goal.md).
     map_dropout: float = Field(0.0, ge=0, le=1)

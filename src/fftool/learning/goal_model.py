@@ -124,6 +124,13 @@ def goal_inputs(
     return torch.cat([*channels, crop.to(obs.dtype)], dim=1), center, R
 
 
+def speed_scaled(xy: Tensor, scale: Tensor, obs_len: int) -> Tensor:
+    """(B, T, 2) windows with each one's positions scaled about its last observed position by scale (B,): the same
+    path walked `scale` times as fast, which `goal.speed_scale` trains with."""
+    last = xy[:, obs_len - 1 : obs_len]
+    return last + scale[:, None, None].to(xy.dtype) * (xy - last)
+
+
 def supervised_steps(cfg: GoalConfig, pred_len: int) -> list[int]:
     """The future steps (1 … pred_len) the U-Net's output maps stand for, evenly spaced, the goal's last."""
     n = cfg.supervised_steps

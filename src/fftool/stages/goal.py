@@ -9,6 +9,7 @@ an interrupted run resumes where it stopped.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ from fftool.learning.goal_model import (
     goal_inputs,
     goal_loss,
     input_channels,
+    speed_scaled,
     supervised_steps,
 )
 from fftool.learning.scene_prior import goal_scene_index, load_goal_scenes
@@ -118,15 +120,20 @@ class _Trainer:
                 blank = torch.zeros(len(index), dtype=torch.bool)
                 if cfg.map_dropout:
                     blank = torch.rand(len(index), generator=gen, dtype=torch.float32) < cfg.map_dropout
+                scale = torch.ones(len(index))  # drawn only when asked for, as the map dropout
+                if cfg.speed_scale != 1:
+                    log_range = math.log(cfg.speed_scale)
+                    scale = torch.exp((2 * torch.rand(len(index), generator=gen) - 1) * log_range)
                 share = 1.0  # this rank's factor on its mean loss
                 if distributed.active():
                     mine, share = distributed.shard(index.numpy())
                     keep = torch.as_tensor(mine)
-                    index, angle, mirror, reverse, blank = (
-                        index[keep], angle[keep], mirror[keep], reverse[keep], blank[keep]
+                    index, angle, mirror, reverse, blank, scale = (
+                        index[keep], angle[keep], mirror[keep], reverse[keep], blank[keep], scale[keep]
                     )  # fmt: skip
                 xy = self.train_xy[index]
-                xy = torch.where(reverse[:, None, None], xy.flip(1), xy).to(device)
+                xy = torch.where(reverse[:, None, None], xy.flip(1), xy)
+                xy = speed_scaled(xy, scale, self.obs_len).to(device)
                 if not cfg.augment or cfg.align_heading:
                     angle = torch.zeros_like(angle)
                 if not cfg.augment:
