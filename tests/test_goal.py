@@ -232,7 +232,6 @@ def test_speed_scaling_keeps_the_last_observed_position_and_scales_every_displac
     scaled = goal_model.speed_scaled(xy, torch.tensor([0.5]), obs_len=3)
     expected = torch.tensor([[[1.0, 0.5], [1.5, 0.5], [2.0, 1.0], [3.0, 1.0]]])  # about (2, 1), halved
     assert torch.equal(scaled, expected)
-    assert torch.equal(goal_model.speed_scaled(xy, torch.ones(1), obs_len=3), xy)
 
 
 @pytest.mark.parametrize("speed_scale", [1.0, 2.0])
@@ -240,7 +239,7 @@ def test_speed_scale_trains_with_factors_drawn_in_its_range(
     inputs: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, speed_scale: float
 ) -> None:
     """Every training window is scaled by a factor in [1 / speed_scale, speed_scale], spread over that range;
-    off (1), every factor is 1."""
+    off (1), no window is touched."""
     factors: list[torch.Tensor] = []
     original = goal.speed_scaled
 
@@ -250,12 +249,12 @@ def test_speed_scale_trains_with_factors_drawn_in_its_range(
 
     monkeypatch.setattr(goal, "speed_scaled", spy)
     _train(inputs, tmp_path, f"speed{speed_scale}", TINY.model_copy(update={"epochs": 1, "speed_scale": speed_scale}))
+    if speed_scale == 1:
+        assert factors == []
+        return
     seen = torch.cat(factors)
     assert seen.numel() > 20 and seen.min() >= 1 / speed_scale - 1e-6 and seen.max() <= speed_scale + 1e-6
-    if speed_scale == 1:
-        assert torch.equal(seen, torch.ones_like(seen))
-    else:  # log-uniform: about half below 1, and both ends of the range reached
-        assert 0.25 < (seen < 1).float().mean() < 0.75 and seen.min() < 0.6 and seen.max() > 1.6
+    assert 0.25 < (seen < 1).float().mean() < 0.75 and seen.min() < 0.6 and seen.max() > 1.6  # log-uniform
 
 
 def test_map_dropout_gives_a_share_of_training_crops_the_zero_scene(

@@ -133,7 +133,9 @@ class _Trainer:
                     )  # fmt: skip
                 xy = self.train_xy[index]
                 xy = torch.where(reverse[:, None, None], xy.flip(1), xy)
-                xy = speed_scaled(xy, scale, self.obs_len).to(device)
+                if cfg.speed_scale != 1:  # off, the windows stay bit for bit as the recipe's models saw them
+                    xy = speed_scaled(xy, scale, self.obs_len)
+                xy = xy.to(device)
                 if not cfg.augment or cfg.align_heading:
                     angle = torch.zeros_like(angle)
                 if not cfg.augment:
