@@ -12,6 +12,9 @@ goal U-Net trains on B's train part without the windows of the place HOLDOUT[B] 
 its best epoch on that place's windows (B's train and val parts), and is scored on all of them. That is the
 leave-one-out situation the test meets (a scene the module never saw), measured without a test window.
 
+With `--holdout --place P`, B holds out P, any other place it trains on, instead of HOLDOUT[B]; the rows' lever
+column ends with `place=P`.
+
 With `--holdout --select-in-scene`, the goal U-Net still trains without that place but chooses its best epoch as the
 shipped modules do, on B's val part (without the place's windows); only the scoring reads the place. `--curves FILE`
 appends the trained model's per-epoch validation (what chose its best epoch) to FILE.
@@ -232,19 +235,23 @@ def measure(
     select_in_scene: bool = False,
     curves: Path | None = None,
     ensemble: tuple[str, ...] = (),
+    place: str | None = None,
 ) -> list[dict[str, object]]:
+    """The lever's rows for one benchmark; with `holdout`, validated on `place` (default HOLDOUT[benchmark])."""
     overrides, patches = LEVERS[lever]
     for name in patches:
         _patch(name)
-    if holdout:  # its own store: the goal artifact's fingerprint does not know which windows it read
-        _hold_out(HOLDOUT[benchmark], select_in_scene)
-    store = ArtifactStore(root / _store_name(lever, benchmark, holdout, select_in_scene))
+    held = held_out_place(benchmark, place) if holdout else None
+    if held:  # its own store: the goal artifact's fingerprint does not know which windows it read
+        _hold_out(held, select_in_scene)
+    store = ArtifactStore(root / _store_name(lever, held, select_in_scene))
+    other_place = held if held != HOLDOUT[benchmark] and held else None  # named in the CSV's lever column
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":
         cfg = load_config(profile, extra)
         windows = pipeline.run(cfg, store, ["windows"], runtime=runtime)["windows"]
-        return _constant_velocity_rows(windows, benchmark, cfg.goals, holdout, step_scale)
+        return _constant_velocity_rows(windows, benchmark, cfg.goals, held, step_scale, other_place)
     if rescore or step_scale != 1 or blank_maps or ensemble:  # the lever's models as trained, scored another way
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
@@ -254,11 +261,11 @@ def measure(
         goal, windows, maps = built["goal"], built["windows"], built["maps"]
     seconds = time.perf_counter() - started
     if curves:
-        validation = _validation(benchmark, holdout, 1, select_in_scene)
-        _append(curves, _curve_rows(goal, _label(lever, [], 1, select_in_scene), benchmark, validation))
+        validation = _validation(held, 1, select_in_scene)
+        _append(curves, _curve_rows(goal, _label(lever, [], 1, select_in_scene, other_place), benchmark, validation))
     model, goal_cfg, sampling = goal_model.load_model(goal, device)
     if ensemble:
-        stores = [ArtifactStore(root / _store_name(other, benchmark, holdout, select_in_scene)) for other in ensemble]
+        stores = [ArtifactStore(root / _store_name(other, held, select_in_scene)) for other in ensemble]
         model = ProbabilityMean(
             [model, *(goal_model.load_model(_trained(other, benchmark), device)[0] for other in stores)]
         )
@@ -276,7 +283,11 @@ def measure(
     obs_len, pred_len = int(windows.manifest.stats["obs_len"]), int(windows.manifest.stats["pred_len"])
     fde = _val_fde(model, val, scene_maps, goal_cfg, sampling, obs_len, pred_len, device, cv_goals)
     label = _label(
-        "+".join([lever, *ensemble]), [*rescore, *(["maps=blank"] * blank_maps)], step_scale, select_in_scene
+        "+".join([lever, *ensemble]),
+        [*rescore, *(["maps=blank"] * blank_maps)],
+        step_scale,
+        select_in_scene,
+        other_place,
     )
     rows = []
     for radius, (fde_k, fde_1) in fde.items():
@@ -284,7 +295,7 @@ def measure(
             {
                 "lever": label,
                 "benchmark": benchmark,
-                "validation": _validation(benchmark, holdout, step_scale, select_in_scene),
+                "validation": _validation(held, step_scale, select_in_scene),
                 "mode_radius_cells": radius,
                 "val_goal_fde@20_m": round(fde_k, 4),
                 "val_goal_fde@1_m": round(fde_1, 4),
@@ -301,12 +312,21 @@ def measure(
     return rows
 
 
-def _store_name(lever: str, benchmark: str, holdout: bool, select_in_scene: bool) -> str:
-    """A lever's own artifact root: with --holdout, the goal artifact's fingerprint does not know which windows it
-    read, so each held-out place (and selection) gets its own."""
-    if not holdout:
+def held_out_place(benchmark: str, place: str | None) -> str:
+    """The place benchmark B's --holdout validation holds out: `place`, or HOLDOUT[B]. Any place B trains on will
+    do: its windows come from B's train and val parts, never the test part (zara for zara1 is crowds_zara02 and 03)."""
+    place = place or HOLDOUT[benchmark]
+    if set(PLACES[place]) <= set(scenes.BENCHMARK_TEST_SOURCES[benchmark]):  # type: ignore[index]
+        raise SystemExit(f"--place {place}: {benchmark} does not train there (its test scene); nothing to hold out")
+    return place
+
+
+def _store_name(lever: str, place: str | None, select_in_scene: bool) -> str:
+    """A lever's own artifact root: with a held-out place, the goal artifact's fingerprint does not know which
+    windows it read, so each held-out place (and selection) gets its own."""
+    if place is None:
         return lever
-    return f"{lever}@holdout-{HOLDOUT[benchmark]}" + ("-in-scene" if select_in_scene else "")
+    return f"{lever}@holdout-{place}" + ("-in-scene" if select_in_scene else "")
 
 
 class ProbabilityMean(torch.nn.Module):
@@ -324,15 +344,19 @@ class ProbabilityMean(torch.nn.Module):
         return log_p - log_not_p
 
 
-def _label(lever: str, rescore: list[str], step_scale: float, select_in_scene: bool = False) -> str:
-    """The CSV's lever column: the lever, then how its models were rescored (and chosen)."""
+def _label(
+    lever: str, rescore: list[str], step_scale: float, select_in_scene: bool = False, place: str | None = None
+) -> str:
+    """The CSV's lever column: the lever, then how its models were rescored (and chosen), then the held-out place
+    where it is not HOLDOUT's (`place`), so that the tables, which key rows by lever and benchmark, keep it apart."""
     scaled = [f"step_scale={step_scale:.4g}"] if step_scale != 1 else []
-    return " ".join([lever, *rescore, *scaled, *(["best_epoch=val_part"] if select_in_scene else [])])
+    chosen = ["best_epoch=val_part"] if select_in_scene else []
+    return " ".join([lever, *rescore, *scaled, *chosen, *([f"place={place}"] if place else [])])
 
 
-def _validation(benchmark: str, holdout: bool, step_scale: float, select_in_scene: bool = False) -> str:
+def _validation(place: str | None, step_scale: float, select_in_scene: bool = False) -> str:
     """The CSV's validation column: which windows were scored (and, if not those, which chose the best epoch)."""
-    where = f"held-out {HOLDOUT[benchmark]}" if holdout else "val part"
+    where = f"held-out {place}" if place else "val part"
     where += " (best epoch by the val part)" if select_in_scene else ""
     return where + (f", steps of {step_scale:.4g} steps" if step_scale != 1 else "")
 
@@ -366,7 +390,12 @@ def _cv_goals(
 
 
 def _constant_velocity_rows(
-    windows: Artifact, benchmark: str, sampling: GoalsConfig, holdout: bool, step_scale: float
+    windows: Artifact,
+    benchmark: str,
+    sampling: GoalsConfig,
+    place: str | None,
+    step_scale: float,
+    other_place: str | None = None,
 ) -> list[dict[str, object]]:
     """CV@K and CV@1 on the validation windows, one row per mode radius (a network-free reference)."""
     val = load_agent_windows(windows, benchmark, "val")
@@ -378,9 +407,9 @@ def _constant_velocity_rows(
     errors = torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1)
     return [
         {
-            "lever": _label("constant_velocity", [], step_scale),
+            "lever": _label("constant_velocity", [], step_scale, place=other_place),
             "benchmark": benchmark,
-            "validation": _validation(benchmark, holdout, step_scale),
+            "validation": _validation(place, step_scale),
             "mode_radius_cells": radius,
             "val_goal_fde@20_m": round(float(errors.min(1).values.mean()), 4),
             "val_goal_fde@1_m": round(float(errors[:, 0].mean()), 4),
@@ -510,6 +539,9 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="cpu or cuda (the levers beyond the CPU budget)")
     parser.add_argument("--holdout", action="store_true", help="validate on a place held out of training (HOLDOUT)")
     parser.add_argument(
+        "--place", choices=list(PLACES), help="with --holdout: hold out this training place instead of HOLDOUT's"
+    )
+    parser.add_argument(
         "--step-scale",
         type=float,
         default=1.0,
@@ -528,8 +560,8 @@ def main() -> None:
         "--ensemble", action="append", default=[], choices=list(LEVERS), help="score with this lever's models too"
     )
     args = parser.parse_args()
-    if (args.step_scale != 1 or args.select_in_scene) and not args.holdout:
-        parser.error("--step-scale and --select-in-scene read a held-out place: they need --holdout")
+    if (args.step_scale != 1 or args.select_in_scene or args.place) and not args.holdout:
+        parser.error("--step-scale, --select-in-scene and --place read a held-out place: they need --holdout")
     assert VERSIONS["goal"] >= 2, "this measurement needs the cell-centred crop code"
     benchmarks = list(BENCHMARKS) if args.benchmarks == "all" else args.benchmarks.split(",")
     for benchmark in benchmarks:
@@ -547,6 +579,7 @@ def main() -> None:
             args.select_in_scene,
             args.curves,
             tuple(args.ensemble),
+            args.place,
         )
         _append(args.out, rows)
         for row in rows:

@@ -53,6 +53,20 @@ def test_a_held_out_place_leaves_training_and_is_the_validation(levers: ModuleTy
         goal_stage.load_agent_windows(windows, "eth", "test")
 
 
+def test_another_held_out_place_is_any_place_a_benchmark_trains_on(levers: ModuleType) -> None:
+    assert levers.held_out_place("zara1", None) == "hotel"  # HOLDOUT's
+    assert levers.held_out_place("zara1", "univ") == "univ"
+    assert levers.held_out_place("zara1", "zara") == "zara"  # crowds_zara02 and 03 train it; zara01 is its test
+    for benchmark, place in (("eth", "eth"), ("hotel", "hotel")):  # its test scene is all of the place
+        with pytest.raises(SystemExit, match="does not train there"):
+            levers.held_out_place(benchmark, place)
+    assert levers._store_name("recipe_s0", "univ", True) == "recipe_s0@holdout-univ-in-scene"
+    assert levers._validation("univ", 1, True) == "held-out univ (best epoch by the val part)"
+    assert levers._validation(None, 1) == "val part"
+    assert levers._label("recipe_s0", [], 1, True, "univ") == "recipe_s0 best_epoch=val_part place=univ"
+    assert levers._label("recipe_s0", [], 1, True) == "recipe_s0 best_epoch=val_part"
+
+
 def test_tracks_resampled_at_another_step_interpolate_within_each_track(
     levers: ModuleType, built_store: ArtifactStore
 ) -> None:
