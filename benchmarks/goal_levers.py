@@ -245,13 +245,13 @@ def measure(
     if held:  # its own store: the goal artifact's fingerprint does not know which windows it read
         _hold_out(held, select_in_scene)
     store = ArtifactStore(root / _store_name(lever, held, select_in_scene))
-    other_place = held if held != HOLDOUT[benchmark] and held else None  # named in the CSV's lever column
+    other_place = _named_place(benchmark, held)
     started = time.perf_counter()
     device = devices.resolve(runtime.device)
     if lever == "constant_velocity":
         cfg = load_config(profile, extra)
         windows = pipeline.run(cfg, store, ["windows"], runtime=runtime)["windows"]
-        return _constant_velocity_rows(windows, benchmark, cfg.goals, held, step_scale, other_place)
+        return _constant_velocity_rows(windows, benchmark, cfg.goals, held, step_scale)
     if rescore or step_scale != 1 or blank_maps or ensemble:  # the lever's models as trained, scored another way
         goal = _trained(store, benchmark)
         windows, maps = (store.lookup(kind, goal.manifest.sources[kind]) for kind in ("windows", "maps"))
@@ -319,6 +319,11 @@ def held_out_place(benchmark: str, place: str | None) -> str:
     if set(PLACES[place]) <= set(scenes.BENCHMARK_TEST_SOURCES[benchmark]):  # type: ignore[index]
         raise SystemExit(f"--place {place}: {benchmark} does not train there (its test scene); nothing to hold out")
     return place
+
+
+def _named_place(benchmark: str, place: str | None) -> str | None:
+    """The held-out place as the CSV's lever column names it: only where it is not HOLDOUT's."""
+    return place if place and place != HOLDOUT[benchmark] else None
 
 
 def _store_name(lever: str, place: str | None, select_in_scene: bool) -> str:
@@ -390,12 +395,7 @@ def _cv_goals(
 
 
 def _constant_velocity_rows(
-    windows: Artifact,
-    benchmark: str,
-    sampling: GoalsConfig,
-    place: str | None,
-    step_scale: float,
-    other_place: str | None = None,
+    windows: Artifact, benchmark: str, sampling: GoalsConfig, place: str | None, step_scale: float
 ) -> list[dict[str, object]]:
     """CV@K and CV@1 on the validation windows, one row per mode radius (a network-free reference)."""
     val = load_agent_windows(windows, benchmark, "val")
@@ -407,7 +407,7 @@ def _constant_velocity_rows(
     errors = torch.linalg.vector_norm(goals - xy[:, None, -1], dim=-1)
     return [
         {
-            "lever": _label("constant_velocity", [], step_scale, place=other_place),
+            "lever": _label("constant_velocity", [], step_scale, place=_named_place(benchmark, place)),
             "benchmark": benchmark,
             "validation": _validation(place, step_scale),
             "mode_radius_cells": radius,

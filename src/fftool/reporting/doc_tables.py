@@ -267,18 +267,18 @@ def seeded_levers_table(
     mean ± sample deviation of goal-FDE@20 over the seeds, each seed's benchmark average, their mean ± deviation,
     and the difference from the reference's mean with twice its standard error (`seeded_lever_gap`)."""
     runs = {arm: seeded_lever_fde(levers_csv, arm, seeds, benchmarks, suffix, radius) for arm in arms}
-    reference = runs[next(iter(arms))]
+    first = next(iter(arms))
     rows = []
     for arm, label in arms.items():
         fde = runs[arm]
         per_seed = fde.mean(axis=1)
-        gap, se = seeded_lever_gap(fde, reference)
+        gap, se = seeded_lever_gap(fde, runs[first])
         rows.append([
             label,
             *(f"{fde[b].mean():.3f} ± {fde[b].std():.3f}" for b in benchmarks),
             " / ".join(f"{v:.3f}" for v in per_seed),
             f"**{per_seed.mean():.4f} ± {per_seed.std():.4f}**",
-            "" if arm == next(iter(arms)) else f"{gap:+.4f} ± {2 * se:.4f}",
+            "" if arm == first else f"{gap:+.4f} ± {2 * se:.4f}",
         ])  # fmt: skip
     seeds_text = ", ".join(str(s) for s in seeds)
     header = ["arm (held-out goal-FDE@20, m)", *benchmarks, f"average, seeds {seeds_text}", "mean ± deviation",
