@@ -7,7 +7,10 @@ from pathlib import Path
 import pandas as pd
 
 from fftool.reporting.doc_tables import (
+    code_table,
     gap_table,
+    hedge_choice,
+    hedge_table,
     largest_retrain_change,
     output_lever_table,
     retrain_spread_table,
@@ -201,3 +204,54 @@ def test_a_seeded_lever_is_its_mean_over_seeds_against_the_reference_with_twice_
         seeded_lever_fde(csv, "ref", [0, 1, 2], ["zara1", "hotel"], " best_epoch=val_part"),
     )
     assert abs(gap + 0.02) < 1e-12 and abs(se - (2 * 0.01**2 / 3) ** 0.5) < 1e-12
+
+
+def test_a_hedge_is_tabulated_per_cell_and_against_no_hedge_with_a_paired_standard_error(tmp_path: Path) -> None:
+    cells = [("zara1", "hotel"), ("hotel", "zara")]
+    rows = []
+    for seed, gain in enumerate((0.01, 0.02, 0.03)):
+        for m, ade_change, fde_change in ((0, 0.0, 0.0), (2, -gain, 0.01)):
+            ade, fde = 0.20 + 0.01 * seed + ade_change, 0.30 + 0.01 * seed + fde_change
+            rows.append(("zara1", "dr", "hotel", seed, "mean", m, "first", ade, fde))
+            rows.append(("hotel", "dr", "zara", seed, "mean", m, "first", 0.10, 0.20))
+            rows.append(("hotel", "dr", "zara", seed, "mean", m, "spread", 7.0, 7.0))  # another pick: not read
+        rows.append(("zara1", "dr", "hotel", seed, "prior", 0, "first", 0.21 + 0.01 * seed, 0.29 + 0.01 * seed))
+        rows.append(("hotel", "dr", "zara", seed, "prior", 0, "first", 0.10 + 0.01 * seed, 0.20))
+    rows.append(("hotel", "re", "zara", 0, "mean", 0, "first", 9.0, 9.0))  # another variant: not read
+    rows.insert(0, ("hotel", "dr", "zara", 0, "mean", 0, "first", 5.0, 5.0))  # an earlier run: the last counts
+    csv = tmp_path / "hedge.csv"
+    columns = ["benchmark", "variant", "place", "goal_seed", "code", "m", "pick", "min_ade_m", "min_fde_m"]
+    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    table = hedge_table(csv, "dr", cells).splitlines()
+    assert table[2] == "| 0 | 0.210 / 0.310 | 0.100 / 0.200 | **0.1550 / 0.2550** |  |  |"
+    # screen change per seed: minADE −0.005, −0.010, −0.015 (sd 0.005, 2 SE 0.0058); minFDE +0.005 on every seed
+    assert table[3] == (
+        "| 2 | 0.190 / 0.320 | 0.100 / 0.200 | **0.1450 / 0.2600** | -0.0100 ± 0.0058 | +0.0050 ± 0.0000 |"
+    )
+    # the prior code at m = 0: per seed minADE (0.21 + 0.01 s + 0.10 + 0.01 s) / 2, +0.005 + 0.005 s against the mean
+    # code (mean +0.010, sd 0.005); minFDE −0.005 on every seed
+    arms = {("dr", "mean"): "dr, mean code", ("dr", "prior"): "dr, prior"}
+    codes = code_table(csv, cells, arms).splitlines()
+    assert codes[2] == "| dr, mean code | 0.210 / 0.310 | 0.100 / 0.200 | **0.1550 / 0.2550** |  |  |"
+    assert (
+        codes[3]
+        == "| dr, prior | 0.220 / 0.300 | 0.110 / 0.200 | **0.1650 / 0.2500** | +0.0100 ± 0.0058 | -0.0050 ± 0.0000 |"
+    )
+
+
+def test_the_hedge_is_kept_only_when_both_metrics_gain_past_the_bar_and_twice_their_error(tmp_path: Path) -> None:
+    rows = []
+    for seed, gain in enumerate((0.010, 0.012, 0.014)):  # minADE gain 0.012, sd 0.002: 2 SE 0.0023
+        rows.append(("zara1", "dr", "hotel", seed, "mean", 0, "first", 0.20, 0.30))
+        rows.append(("zara1", "dr", "hotel", seed, "mean", 2, "first", 0.20 - gain, 0.30 - 0.006))
+        rows.append(("zara1", "dr", "hotel", seed, "mean", 4, "first", 0.20 - gain, 0.30 - 0.002))
+    columns = ["benchmark", "variant", "place", "goal_seed", "code", "m", "pick", "min_ade_m", "min_fde_m"]
+    csv = tmp_path / "hedge.csv"
+    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    cells = [("zara1", "hotel")]
+    found = hedge_choice(csv, "dr", cells, "first", (0, 2, 4), 0.005)
+    assert found["m"] == 2 and found["kept"]  # 0.012 and 0.006 both past 5 mm and their 2 SE (0.0023, 0)
+    assert abs(found["ade_gain"] - 0.012) < 1e-12 and abs(found["ade_2se"] - 2 * 0.002 / 3**0.5) < 1e-12
+    assert not hedge_choice(csv, "dr", cells, "first", (0, 2, 4), 0.007)["kept"]  # minFDE's 6 mm is under 7 mm
+    assert hedge_choice(csv, "dr", cells, "first", (0, 4), 0.005)["m"] == 4  # the best of the grid given
+    assert not hedge_choice(csv, "dr", cells, "first", (0, 4), 0.005)["kept"]  # minFDE gains 2 mm only

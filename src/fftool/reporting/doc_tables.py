@@ -286,6 +286,88 @@ def seeded_levers_table(
     return _markdown(header, rows)
 
 
+def _hedge_rows(hedge_csv: Path | str, variant: str, pick: str, code: str) -> pd.DataFrame:
+    """benchmarks/goal_hedge.py's rows of `variant`, `pick` and `code`, the last of each (cell, goal-module seed, m)."""
+    frame = pd.read_csv(hedge_csv)
+    frame = frame[(frame["variant"] == variant) & (frame["pick"] == pick) & (frame["code"] == code)]
+    return frame.drop_duplicates(["benchmark", "place", "goal_seed", "m"], keep="last")
+
+
+def hedge_screen(
+    hedge_csv: Path | str, variant: str, cells: Sequence[tuple[str, str]], pick: str = "first", code: str = "mean"
+) -> pd.DataFrame:
+    """minADE and minFDE per (m, goal-module seed) of `variant` decoding with `code`, hedged by `pick`, each the
+    mean over the screen's (benchmark, place) cells; a (m, seed) missing a cell is dropped."""
+    frame = _hedge_rows(hedge_csv, variant, pick, code)
+    frame = frame[frame[["benchmark", "place"]].apply(tuple, axis=1).isin(cells)]
+    grouped = frame.groupby(["m", "goal_seed"])
+    means = grouped[["min_ade_m", "min_fde_m"]].mean()
+    return means[grouped.size() == len(cells)]
+
+
+def _paired_gaps(change: pd.DataFrame) -> list[str]:
+    """The mean of each metric's per-seed change, with twice its standard error (none from one seed)."""
+    return [
+        f"{change[c].mean():+.4f}" + (f" ± {2 * change[c].std() / len(change) ** 0.5:.4f}" if len(change) > 1 else "")
+        for c in ("min_ade_m", "min_fde_m")
+    ]
+
+
+def code_table(hedge_csv: Path | str, cells: Sequence[tuple[str, str]], arms: dict[tuple[str, str], str]) -> str:
+    """Each (variant, code) arm of `arms` (-> label) at m = 0: per cell minADE / minFDE averaged over the goal-module
+    seeds, the cells' mean, and its paired difference from the same variant with the mean code."""
+    rows = []
+    for (variant, code), label in arms.items():
+        per_cell = _hedge_rows(hedge_csv, variant, "first", code)
+        per_cell = per_cell[per_cell["m"] == 0].groupby(["benchmark", "place"])[["min_ade_m", "min_fde_m"]].mean()
+        screen = hedge_screen(hedge_csv, variant, cells, code=code).loc[0]
+        gaps = [] if code == "mean" else _paired_gaps(screen - hedge_screen(hedge_csv, variant, cells).loc[0])
+        cell_text = [_pair(*per_cell.loc[cell]) for cell in cells]
+        rows.append([label, *cell_text, f"**{_pair(*screen.mean(), digits=4)}**", *(gaps or ["", ""])])
+    header = ["variant, code", *(f"{b}, {p} held out" for b, p in cells), "screen mean",
+              "minADE vs mean code ± 2 SE", "minFDE vs mean code ± 2 SE"]  # fmt: skip
+    return _markdown(header, rows)
+
+
+def hedge_choice(
+    hedge_csv: Path | str, variant: str, cells: Sequence[tuple[str, str]], pick: str, grid: Sequence[int], bar: float
+) -> dict[str, float | int | bool]:
+    """docs/experiments/goal-hedge.md's rule: m* in `grid` minimises the screen's mean minADE + minFDE; kept when
+    m* > 0 lowers both against m = 0 by more than `bar` (m) and by more than twice their standard error."""
+    screen = hedge_screen(hedge_csv, variant, cells, pick)
+    means = screen.groupby(level="m").mean()
+    best = int(means.loc[list(grid)].sum(axis=1).idxmin())
+    change = screen.loc[best] - screen.loc[0]
+    gains = {c: (-change[c].mean(), 2 * change[c].std() / len(change) ** 0.5) for c in ("min_ade_m", "min_fde_m")}
+    kept = best > 0 and all(gain > bar and gain > se2 for gain, se2 in gains.values())
+    return {"m": best, "ade_gain": gains["min_ade_m"][0], "ade_2se": gains["min_ade_m"][1],
+            "fde_gain": gains["min_fde_m"][0], "fde_2se": gains["min_fde_m"][1], "kept": kept}  # fmt: skip
+
+
+def hedge_table(
+    hedge_csv: Path | str,
+    variant: str,
+    cells: Sequence[tuple[str, str]],
+    pick: str = "first",
+    column: str = "{benchmark}, {place} held out",
+) -> str:
+    """Per m (K − m samples of `variant`, m of AgentFormer's DLow chosen by `pick`): each screen cell's minADE /
+    minFDE averaged over the goal-module seeds, the cells' mean, and its paired difference from m = 0 with twice
+    the standard error over the seeds (none from one seed). `column` names a cell's column."""
+    per_cell = _hedge_rows(hedge_csv, variant, pick, "mean").groupby(["m", "benchmark", "place"])
+    per_cell = per_cell[["min_ade_m", "min_fde_m"]].mean()
+    screen = hedge_screen(hedge_csv, variant, cells, pick)
+    reference = screen.loc[0]
+    rows = []
+    for m, by_seed in screen.groupby(level="m"):
+        gaps = _paired_gaps(by_seed.droplevel("m") - reference) if m else ["", ""]
+        cell_text = [_pair(*per_cell.loc[(m, b, p)]) for b, p in cells]
+        rows.append([f"{m}", *cell_text, f"**{_pair(*by_seed.mean(), digits=4)}**", *gaps])
+    header = ["m", *(column.format(benchmark=b, place=p) for b, p in cells), "screen mean",
+              "minADE vs m = 0 ± 2 SE", "minFDE vs m = 0 ± 2 SE"]  # fmt: skip
+    return _markdown(header, rows)
+
+
 def _settled_below(paired: pd.DataFrame, variant: str, metric: str) -> bool:
     """Whether the report's paired bootstrap puts the whole all-scenes interval of variant − AgentFormer below 0."""
     rows = paired[paired["method"].str.startswith(PAPER_NAMES[variant]) & (paired["metric"] == metric)]
