@@ -7,7 +7,8 @@ Scores the shipped cpu models of one benchmark on its val-part windows. With `--
 the windows of place P, with the goals of the benchmark's goal U-Net in S (a `goal_levers.py --holdout --place P`
 store: a module that never saw P); without, the whole val part and the shipped goal U-Net. Reads no test window.
 Appends two CSV rows per m, one per pick (m = 0: the variant as shipped; m = K: AgentFormer alone). `--code prior`
-decodes each goal from a draw of the prior (or the variant's DLow sampler's code) instead of the profile's code.
+decodes each goal from a draw of the prior (or the variant's DLow sampler's code) instead of the profile's code;
+`--goals agentformer` gives the variant the end points of AgentFormer's K samples as its K goals (m = 0).
 
     python benchmarks/goal_hedge.py --root /tmp/cpu/artifacts --benchmark zara1 --variant dr --place hotel \\
         --goal-store /tmp/fftool_goal_levers/recipe_s0@holdout-hotel-in-scene --out benchmarks/results/goal_hedge.csv
@@ -110,10 +111,16 @@ def main() -> None:
     parser.add_argument(
         "--code", choices=("mean", "prior"), help="the code each goal decodes with (default: the profile's)"
     )
+    parser.add_argument(
+        "--goals",
+        choices=("module", "agentformer"),
+        default="module",
+        help="the K goals: the goal U-Net's, or the end points of AgentFormer's K samples (then m = 0 only)",
+    )
     parser.add_argument("--hedges", default=",".join(map(str, HEDGES)), help="values of m, comma-separated")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    if bool(args.place) != bool(args.goal_store):
+    if args.goals == "module" and bool(args.place) != bool(args.goal_store):
         parser.error("--place and --goal-store go together")
     torch.set_num_threads(1)
     device, benchmark = torch.device("cpu"), args.benchmark
@@ -123,6 +130,11 @@ def main() -> None:
     windows, forces, maps = built["windows"], built["forces"], built["maps"]
     shipped = {(m.kind, m.variant): m.artifact for m in zoo.shipped(args.profile, [benchmark])}
     goal = _trained(ArtifactStore(args.goal_store), benchmark) if args.goal_store else shipped["goal", None]
+    if args.goals == "agentformer":
+        args.hedges, goal_name, goal_seed = "0", "AgentFormer's end points", None
+    else:
+        goal_name = f"{goal.id}@{args.goal_store.name}" if args.goal_store else f"{goal.id} (shipped)"
+        goal_seed = goal.manifest.params["seed"]
     scenes = load_scene_set(windows, forces, benchmark, "val")
     obs_len = int(windows.manifest.stats["obs_len"])
     pred_len = int(windows.manifest.stats["pred_len"])
@@ -149,7 +161,11 @@ def main() -> None:
     records = []
     for m in sorted({int(v) for v in args.hedges.split(",")} | {k}):
         if m < k:
-            drawn = module_goals(cfg, benchmark, goal, windows, maps, k - m, scenes)
+            if args.goals == "agentformer":  # sample k of an agent-window heads to AgentFormer's end point k
+                drawn = np.zeros((len(scenes.data), k, 2), dtype=np.float32)
+                drawn[np.searchsorted(scenes.data.row, base["row"])] = base["end"]
+            else:
+                drawn = module_goals(cfg, benchmark, goal, windows, maps, k - m, scenes)
             evaluate = variant_cfg.model_copy(update={"k": k - m})
             predictor = Predictor(evaluate, trained, drawn, obs_len, pred_len, device, sampler)
             own = per_sample(predictor, scenes, plan, obs_len, device)
@@ -163,8 +179,9 @@ def main() -> None:
                     "benchmark": benchmark,
                     "variant": args.variant,
                     "place": args.place or "val part",
-                    "goal_unet": f"{goal.id}@{args.goal_store.name}" if args.goal_store else f"{goal.id} (shipped)",
-                    "goal_seed": goal.manifest.params["seed"],
+                    "goals": args.goals,
+                    "goal_unet": goal_name,
+                    "goal_seed": goal_seed,
                     "code": variant_cfg.fair_code if dlow is None or variant_cfg.fair_code == "mean" else "dlow",
                     "m": m,
                     "pick": pick,

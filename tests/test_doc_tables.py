@@ -7,6 +7,7 @@ from pathlib import Path
 import pandas as pd
 
 from fftool.reporting.doc_tables import (
+    agentformer_goals_table,
     code_table,
     gap_table,
     hedge_choice,
@@ -221,7 +222,11 @@ def test_a_hedge_is_tabulated_per_cell_and_against_no_hedge_with_a_paired_standa
     rows.insert(0, ("hotel", "dr", "zara", 0, "mean", 0, "first", 5.0, 5.0))  # an earlier run: the last counts
     csv = tmp_path / "hedge.csv"
     columns = ["benchmark", "variant", "place", "goal_seed", "code", "m", "pick", "min_ade_m", "min_fde_m"]
-    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    frame = pd.DataFrame(rows, columns=columns).assign(goals="module")
+    other_goals = frame.iloc[-2:].assign(
+        goals="agentformer", min_ade_m=8.0, min_fde_m=8.0
+    )  # not the module's: not read
+    pd.concat([frame, other_goals]).to_csv(csv, index=False)
     table = hedge_table(csv, "dr", cells).splitlines()
     assert table[2] == "| 0 | 0.210 / 0.310 | 0.100 / 0.200 | **0.1550 / 0.2550** |  |  |"
     # screen change per seed: minADE −0.005, −0.010, −0.015 (sd 0.005, 2 SE 0.0058); minFDE +0.005 on every seed
@@ -247,7 +252,7 @@ def test_the_hedge_is_kept_only_when_both_metrics_gain_past_the_bar_and_twice_th
         rows.append(("zara1", "dr", "hotel", seed, "mean", 4, "first", 0.20 - gain, 0.30 - 0.002))
     columns = ["benchmark", "variant", "place", "goal_seed", "code", "m", "pick", "min_ade_m", "min_fde_m"]
     csv = tmp_path / "hedge.csv"
-    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    pd.DataFrame(rows, columns=columns).assign(goals="module").to_csv(csv, index=False)
     cells = [("zara1", "hotel")]
     found = hedge_choice(csv, "dr", cells, "first", (0, 2, 4), 0.005)
     assert found["m"] == 2 and found["kept"]  # 0.012 and 0.006 both past 5 mm and their 2 SE (0.0023, 0)
@@ -255,3 +260,22 @@ def test_the_hedge_is_kept_only_when_both_metrics_gain_past_the_bar_and_twice_th
     assert not hedge_choice(csv, "dr", cells, "first", (0, 2, 4), 0.007)["kept"]  # minFDE's 6 mm is under 7 mm
     assert hedge_choice(csv, "dr", cells, "first", (0, 4), 0.005)["m"] == 4  # the best of the grid given
     assert not hedge_choice(csv, "dr", cells, "first", (0, 4), 0.005)["kept"]  # minFDE gains 2 mm only
+
+
+def test_agentformers_end_points_as_goals_are_tabulated_against_agentformer_alone(tmp_path: Path) -> None:
+    columns = ["benchmark", "variant", "place", "goals", "m", "pick", "min_ade_m", "min_fde_m"]
+    rows = [
+        ("zara1", "dr", "hotel", "agentformer", 0, "first", 0.19, 0.30),
+        ("zara1", "dr", "hotel", "agentformer", 20, "first", 0.18, 0.30),
+        ("hotel", "dr", "zara", "agentformer", 0, "first", 0.20, 0.31),
+        ("hotel", "dr", "zara", "agentformer", 20, "first", 0.17, 0.30),
+        ("hotel", "dr", "zara", "module", 0, "first", 9.0, 9.0),  # the goal module's goals: not read
+    ]
+    csv = tmp_path / "hedge.csv"
+    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    table = agentformer_goals_table(csv, [("zara1", "hotel"), ("hotel", "zara")], ["dr"]).splitlines()
+    assert table[2] == "| AgentFormer alone | 0.180 / 0.300 | 0.170 / 0.300 | **0.1750 / 0.3000** |  |"
+    assert table[3] == (
+        "| dr, AgentFormer's end points as goals | 0.190 / 0.300 | 0.200 / 0.310 | **0.1950 / 0.3050** "
+        "| +0.0200 / +0.0050 |"
+    )

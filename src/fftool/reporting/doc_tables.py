@@ -287,9 +287,11 @@ def seeded_levers_table(
 
 
 def _hedge_rows(hedge_csv: Path | str, variant: str, pick: str, code: str) -> pd.DataFrame:
-    """benchmarks/goal_hedge.py's rows of `variant`, `pick` and `code`, the last of each (cell, goal-module seed, m)."""
+    """benchmarks/goal_hedge.py's rows of `variant`, `pick` and `code` with the goal module's goals, the last of each
+    (cell, goal-module seed, m)."""
     frame = pd.read_csv(hedge_csv)
-    frame = frame[(frame["variant"] == variant) & (frame["pick"] == pick) & (frame["code"] == code)]
+    chosen = (frame["variant"] == variant) & (frame["pick"] == pick) & (frame["code"] == code)
+    frame = frame[chosen & (frame["goals"] == "module")]
     return frame.drop_duplicates(["benchmark", "place", "goal_seed", "m"], keep="last")
 
 
@@ -342,6 +344,29 @@ def hedge_choice(
     kept = best > 0 and all(gain > bar and gain > se2 for gain, se2 in gains.values())
     return {"m": best, "ade_gain": gains["min_ade_m"][0], "ade_2se": gains["min_ade_m"][1],
             "fde_gain": gains["min_fde_m"][0], "fde_2se": gains["min_fde_m"][1], "kept": kept}  # fmt: skip
+
+
+def agentformer_goals_table(hedge_csv: Path | str, cells: Sequence[tuple[str, str]], variants: Sequence[str]) -> str:
+    """AgentFormer alone, then each variant decoding the end points of AgentFormer's K samples as its K goals
+    (benchmarks/goal_hedge.py --goals agentformer): minADE / minFDE per cell, the cells' mean and its difference
+    from AgentFormer alone."""
+    frame = pd.read_csv(hedge_csv)
+    frame = frame[(frame["goals"] == "agentformer") & (frame["pick"] == "first")]
+    frame = frame.drop_duplicates(["benchmark", "place", "variant", "m"], keep="last").set_index(["benchmark", "place"])
+    arms = {"AgentFormer alone": frame[frame["m"] > 0].groupby(level=[0, 1]).first()}
+    arms |= {
+        f"{v}, AgentFormer's end points as goals": frame[(frame["variant"] == v) & (frame["m"] == 0)] for v in variants
+    }
+    reference = arms["AgentFormer alone"].loc[list(cells), ["min_ade_m", "min_fde_m"]].mean()
+    rows = []
+    for label, rows_of in arms.items():
+        values = rows_of.loc[list(cells), ["min_ade_m", "min_fde_m"]]
+        change = values.mean() - reference
+        gap = "" if label == "AgentFormer alone" else f"{change['min_ade_m']:+.4f} / {change['min_fde_m']:+.4f}"
+        cell_text = [_pair(*values.loc[cell]) for cell in cells]
+        rows.append([label, *cell_text, f"**{_pair(*values.mean(), digits=4)}**", gap])
+    header = ["predictor", *(f"{b}, {p} held out" for b, p in cells), "mean", "vs AgentFormer alone"]
+    return _markdown(header, rows)
 
 
 def hedge_table(
