@@ -24,7 +24,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 import torch
 from goal_levers import PLACES, _append, _trained
 
@@ -35,7 +34,7 @@ from fftool.config import EvaluateConfig, PipelineConfig, predictor_config, vari
 from fftool.learning.batches import SceneSet, load_scene_set
 from fftool.learning.cvae_model import load_model
 from fftool.learning.dlow_model import load_sampler
-from fftool.learning.sampling import Predictor, collect, sample_batches
+from fftool.learning.sampling import Predictor, aligned_goals, collect, sample_batches
 from fftool.science.metrics import ade_fde
 from fftool.stages import goals as goals_stage
 
@@ -84,14 +83,7 @@ def module_goals(
     sampling = cfg.goals.model_copy(update={"k": k, "parts": ("val",)})
     with tempfile.TemporaryDirectory() as out:
         goals_stage.sample(sampling, benchmark, goal, windows, maps, Path(out), torch.device("cpu"))
-        index = pq.read_table(Path(out) / GOALS_INDEX_FILE).to_pandas()
-        drawn = np.load(Path(out) / GOALS_FILE)
-    aligned = np.array_equal(index["window_id"], scenes.data.window_id) and np.array_equal(
-        index["ped_id"], scenes.data.ped_id
-    )
-    if not aligned:
-        raise SystemExit(f"{goal.id}: its val goals do not line up with the CVAE's val windows")
-    return drawn
+        return np.array(aligned_goals(Path(out) / GOALS_INDEX_FILE, Path(out) / GOALS_FILE, scenes, benchmark, "val"))
 
 
 def place_windows(scenes: SceneSet, place: str | None) -> np.ndarray:
@@ -130,8 +122,9 @@ def main() -> None:
     windows, forces, maps = built["windows"], built["forces"], built["maps"]
     shipped = {(m.kind, m.variant): m.artifact for m in zoo.shipped(args.profile, [benchmark])}
     goal = _trained(ArtifactStore(args.goal_store), benchmark) if args.goal_store else shipped["goal", None]
+    hedges = {int(v) for v in args.hedges.split(",")}
     if args.goals == "agentformer":
-        args.hedges, goal_name, goal_seed = "0", "AgentFormer's end points", None
+        hedges, goal_name, goal_seed = {0}, "AgentFormer's end points", None
     else:
         goal_name = f"{goal.id}@{args.goal_store.name}" if args.goal_store else f"{goal.id} (shipped)"
         goal_seed = goal.manifest.params["seed"]
@@ -159,7 +152,7 @@ def main() -> None:
     dlow = shipped.get(("dlow", args.variant))
     sampler = load_sampler(dlow, device) if dlow is not None and variant_cfg.fair_code == "prior" else None
     records = []
-    for m in sorted({int(v) for v in args.hedges.split(",")} | {k}):
+    for m in sorted(hedges | {k}):
         if m < k:
             if args.goals == "agentformer":  # sample k of an agent-window heads to AgentFormer's end point k
                 drawn = np.zeros((len(scenes.data), k, 2), dtype=np.float32)
@@ -182,7 +175,7 @@ def main() -> None:
                     "goals": args.goals,
                     "goal_unet": goal_name,
                     "goal_seed": goal_seed,
-                    "code": variant_cfg.fair_code if dlow is None or variant_cfg.fair_code == "mean" else "dlow",
+                    "code": "dlow" if sampler is not None else variant_cfg.fair_code,
                     "m": m,
                     "pick": pick,
                     "agent_windows": len(base["row"]),

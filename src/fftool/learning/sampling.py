@@ -8,6 +8,7 @@ what comes out, `predict` writes it: the same windows, seed and model give the s
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -190,18 +191,24 @@ def sample_batches(
 
 
 def load_sampled_goals(goals: Artifact, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
-    """(M, K, 2) sampled goals aligned with the scene set's agent-windows (checked key by key)."""
-    index = pq.read_table(goals.file(GOALS_INDEX_FILE)).to_pandas()
+    """(M, K, 2) sampled goals of a goals artifact aligned with the scene set's agent-windows (checked key by key)."""
+    return aligned_goals(goals.file(GOALS_INDEX_FILE), goals.file(GOALS_FILE), scenes, benchmark, part)
+
+
+def aligned_goals(index_file: Path, goals_file: Path, scenes: SceneSet, benchmark: str, part: str) -> np.ndarray:
+    """(M, K, 2) goals of `goals_file` (as `fftool sample-goals` writes it, keyed by `index_file`) aligned with the
+    scene set's agent-windows, checked key by key; memory-mapped."""
+    index = pq.read_table(index_file).to_pandas()
     rows = np.flatnonzero((index["benchmark"] == benchmark).to_numpy() & (index["part"] == part).to_numpy())
     if len(rows) != len(scenes.data) or not (
         np.array_equal(index["window_id"].to_numpy()[rows], scenes.data.window_id)
         and np.array_equal(index["ped_id"].to_numpy()[rows], scenes.data.ped_id)
     ):
         raise FftoolError(
-            f"{goals.file(GOALS_INDEX_FILE)}: the goals of {benchmark}/{part} do not match the windows artifact "
+            f"{index_file}: the goals of {benchmark}/{part} do not match the windows artifact "
             f"({len(rows)} goal rows for {len(scenes.data)} agent-windows); rebuild with fftool sample-goals"
         )
-    return np.load(goals.file(GOALS_FILE), mmap_mode="r")[rows]
+    return np.load(goals_file, mmap_mode="r")[rows]
 
 
 @torch.no_grad()

@@ -295,23 +295,37 @@ def _hedge_rows(hedge_csv: Path | str, variant: str, pick: str, code: str) -> pd
     return frame.drop_duplicates(["benchmark", "place", "goal_seed", "m"], keep="last")
 
 
+def _per_cell(rows: pd.DataFrame) -> pd.DataFrame:
+    """minADE and minFDE per (m, benchmark, place), each the mean over the goal-module seeds."""
+    return rows.groupby(["m", "benchmark", "place"])[["min_ade_m", "min_fde_m"]].mean()
+
+
+def _screen_means(rows: pd.DataFrame, cells: Sequence[tuple[str, str]]) -> pd.DataFrame:
+    """minADE and minFDE per (m, goal-module seed), each the mean over `cells`; a (m, seed) short of a cell is
+    dropped."""
+    rows = rows[rows[["benchmark", "place"]].apply(tuple, axis=1).isin(cells)]
+    grouped = rows.groupby(["m", "goal_seed"])
+    means = grouped[["min_ade_m", "min_fde_m"]].mean()
+    return means[grouped.size() == len(cells)]
+
+
 def hedge_screen(
     hedge_csv: Path | str, variant: str, cells: Sequence[tuple[str, str]], pick: str = "first", code: str = "mean"
 ) -> pd.DataFrame:
     """minADE and minFDE per (m, goal-module seed) of `variant` decoding with `code`, hedged by `pick`, each the
     mean over the screen's (benchmark, place) cells; a (m, seed) missing a cell is dropped."""
-    frame = _hedge_rows(hedge_csv, variant, pick, code)
-    frame = frame[frame[["benchmark", "place"]].apply(tuple, axis=1).isin(cells)]
-    grouped = frame.groupby(["m", "goal_seed"])
-    means = grouped[["min_ade_m", "min_fde_m"]].mean()
-    return means[grouped.size() == len(cells)]
+    return _screen_means(_hedge_rows(hedge_csv, variant, pick, code), cells)
+
+
+def _paired_change(change: pd.DataFrame) -> dict[str, tuple[float, float]]:
+    """Per metric, the mean of the per-seed changes and twice its standard error (NaN from one seed)."""
+    return {c: (change[c].mean(), 2 * change[c].std() / len(change) ** 0.5) for c in ("min_ade_m", "min_fde_m")}
 
 
 def _paired_gaps(change: pd.DataFrame) -> list[str]:
     """The mean of each metric's per-seed change, with twice its standard error (none from one seed)."""
     return [
-        f"{change[c].mean():+.4f}" + (f" ± {2 * change[c].std() / len(change) ** 0.5:.4f}" if len(change) > 1 else "")
-        for c in ("min_ade_m", "min_fde_m")
+        f"{mean:+.4f}" + (f" ± {se2:.4f}" if len(change) > 1 else "") for mean, se2 in _paired_change(change).values()
     ]
 
 
@@ -320,12 +334,11 @@ def code_table(hedge_csv: Path | str, cells: Sequence[tuple[str, str]], arms: di
     seeds, the cells' mean, and its paired difference from the same variant with the mean code."""
     rows = []
     for (variant, code), label in arms.items():
-        per_cell = _hedge_rows(hedge_csv, variant, "first", code)
-        per_cell = per_cell[per_cell["m"] == 0].groupby(["benchmark", "place"])[["min_ade_m", "min_fde_m"]].mean()
-        screen = hedge_screen(hedge_csv, variant, cells, code=code).loc[0]
-        gaps = [] if code == "mean" else _paired_gaps(screen - hedge_screen(hedge_csv, variant, cells).loc[0])
+        found = _hedge_rows(hedge_csv, variant, "first", code)
+        per_cell, screen = _per_cell(found).loc[0], _screen_means(found, cells).loc[0]
+        gaps = ["", ""] if code == "mean" else _paired_gaps(screen - hedge_screen(hedge_csv, variant, cells).loc[0])
         cell_text = [_pair(*per_cell.loc[cell]) for cell in cells]
-        rows.append([label, *cell_text, f"**{_pair(*screen.mean(), digits=4)}**", *(gaps or ["", ""])])
+        rows.append([label, *cell_text, f"**{_pair(*screen.mean(), digits=4)}**", *gaps])
     header = ["variant, code", *(f"{b}, {p} held out" for b, p in cells), "screen mean",
               "minADE vs mean code ± 2 SE", "minFDE vs mean code ± 2 SE"]  # fmt: skip
     return _markdown(header, rows)
@@ -337,13 +350,10 @@ def hedge_choice(
     """docs/experiments/goal-hedge.md's rule: m* in `grid` minimises the screen's mean minADE + minFDE; kept when
     m* > 0 lowers both against m = 0 by more than `bar` (m) and by more than twice their standard error."""
     screen = hedge_screen(hedge_csv, variant, cells, pick)
-    means = screen.groupby(level="m").mean()
-    best = int(means.loc[list(grid)].sum(axis=1).idxmin())
-    change = screen.loc[best] - screen.loc[0]
-    gains = {c: (-change[c].mean(), 2 * change[c].std() / len(change) ** 0.5) for c in ("min_ade_m", "min_fde_m")}
-    kept = best > 0 and all(gain > bar and gain > se2 for gain, se2 in gains.values())
-    return {"m": best, "ade_gain": gains["min_ade_m"][0], "ade_2se": gains["min_ade_m"][1],
-            "fde_gain": gains["min_fde_m"][0], "fde_2se": gains["min_fde_m"][1], "kept": kept}  # fmt: skip
+    best = int(screen.groupby(level="m").mean().loc[list(grid)].sum(axis=1).idxmin())
+    (ade, ade_2se), (fde, fde_2se) = _paired_change(screen.loc[best] - screen.loc[0]).values()
+    kept = best > 0 and all(gain > bar and gain > se2 for gain, se2 in ((-ade, ade_2se), (-fde, fde_2se)))
+    return {"m": best, "ade_gain": -ade, "ade_2se": ade_2se, "fde_gain": -fde, "fde_2se": fde_2se, "kept": kept}
 
 
 def agentformer_goals_table(hedge_csv: Path | str, cells: Sequence[tuple[str, str]], variants: Sequence[str]) -> str:
@@ -379,9 +389,8 @@ def hedge_table(
     """Per m (K − m samples of `variant`, m of AgentFormer's DLow chosen by `pick`): each screen cell's minADE /
     minFDE averaged over the goal-module seeds, the cells' mean, and its paired difference from m = 0 with twice
     the standard error over the seeds (none from one seed). `column` names a cell's column."""
-    per_cell = _hedge_rows(hedge_csv, variant, pick, "mean").groupby(["m", "benchmark", "place"])
-    per_cell = per_cell[["min_ade_m", "min_fde_m"]].mean()
-    screen = hedge_screen(hedge_csv, variant, cells, pick)
+    found = _hedge_rows(hedge_csv, variant, pick, "mean")
+    per_cell, screen = _per_cell(found), _screen_means(found, cells)
     reference = screen.loc[0]
     rows = []
     for m, by_seed in screen.groupby(level="m"):
