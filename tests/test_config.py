@@ -74,6 +74,8 @@ def test_ranges_are_checked_with_the_key_and_the_bound(override: str, expected: 
         (["goal.crop_cells=16", "goal.widths=[4, 8, 8]", "goal.heatmap_sigma_cells=7"], "goal.heatmap_sigma_cells: "),
         (["report.seeds=[0, 0]"], "report.seeds: expected distinct seeds (got [0, 0])"),
         (['cvae.output="goal_residual"'], "cvae.output: expected 'offset' or 'cv_residual' for the baseline, which"),
+        (['cvae.output="relaxation_residual"'], "cvae.output: expected 'offset' or 'cv_residual' for the baseline"),
+        (["cvae.relaxation_steps=0"], "cvae.relaxation_steps"),
     ],
 )
 def test_cross_field_checks_name_the_key_and_what_was_expected(overrides: list[str], expected: str) -> None:

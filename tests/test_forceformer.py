@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -264,6 +266,30 @@ def test_output_types_read_the_head_as_documented() -> None:
         out = model.decode(z, last, context, mask, 12, _newest_position, last_step=step, goal=goal)
         torch.testing.assert_close(out, positions.expand_as(out), msg=output)
     torch.testing.assert_close(out[:, :, -1], goal + 0.5)  # goal_residual's curve ends at the goal
+
+
+def test_the_relaxation_path_is_the_driving_force_toward_a_constant_step() -> None:
+    """relaxation_residual's path, checked by its definition rather than its formula: it leaves with the last
+    observed step, every change of step is λ = exp(-1 / τ) times the one before (a driving force relaxing toward
+    one constant step, Helbing's F = (w − v) / τ per step), and it reaches the goal at step 12; τ → 0 is the
+    straight line to the goal at constant speed."""
+    g = torch.Generator().manual_seed(4)
+    past, mask = torch.randn(1, 2, 8, 4, generator=g), torch.ones(1, 2, dtype=torch.bool)
+    z, last, step = torch.randn(1, 2, 8, generator=g), past[:, :, -1, :2], torch.tensor([[[0.1, 0.2], [-0.3, 0.0]]])
+    goal = last + torch.tensor([[[3.0, 2.4], [-3.6, 1.44]]])
+    for tau in (1.0, 5.0, 1e-3):
+        torch.manual_seed(0)
+        model = ForceFormer(input_dim=4, decoder_dim=2, output="relaxation_residual", relaxation_steps=tau, **SMALL)
+        torch.nn.init.zeros_(model.out.weight)
+        torch.nn.init.zeros_(model.out.bias)
+        context, _ = model.eval().encode_past(past, mask)
+        out = model.decode(z, last, context, mask, 12, _newest_position, last_step=step, goal=goal).double()
+        steps = torch.diff(torch.cat([(last - step).double()[:, :, None], last.double()[:, :, None], out], 2), dim=2)
+        changes = torch.diff(steps, dim=2)  # (B, A, 12, 2): step n+1 − step n, from the last observed one on
+        torch.testing.assert_close(changes[:, :, 1:], math.exp(-1 / tau) * changes[:, :, :-1], atol=1e-6, rtol=0)
+        torch.testing.assert_close(out[:, :, -1], goal.double(), atol=1e-5, rtol=0)
+    straight = last[:, :, None] + torch.arange(1, 13)[None, None, :, None] * (goal - last)[:, :, None] / 12
+    torch.testing.assert_close(out.float(), straight, atol=1e-5, rtol=0)
 
 
 def test_the_output_head_init_is_a_parameter() -> None:

@@ -290,9 +290,11 @@ class CVAEConfig(_Section):
     k: int = Field(20, gt=0)  # samples from the prior at test time and in the best-of-K loss
     kl_min: float = Field(2.0, ge=0)  # free bits on the per-agent KL (AgentFormer's min_clip)
     # The decoder head's meaning (models/forceformer.py OutputType): AgentFormer's "offset" (sn_out_type
-    # 'norm') or fftool's "cv_residual" (over constant velocity) or "goal_residual" (over the constant-acceleration
-    # curve to the goal; goal, dr and re only).
-    output: Literal["offset", "cv_residual", "goal_residual"] = "offset"
+    # 'norm') or fftool's "cv_residual" (over constant velocity), "goal_residual" (over the constant-acceleration
+    # curve to the goal) or "relaxation_residual" (over the path of the driving force alone to the goal, with
+    # relaxation time relaxation_steps time steps: 5 = 2 s at 2.5 Hz); the last two for goal, dr and re only.
+    output: Literal["offset", "cv_residual", "goal_residual", "relaxation_residual"] = "offset"
+    relaxation_steps: float = Field(5.0, gt=0)
     out_init_std: float = Field(0.01, ge=0)  # the output head's N(0, std²) init (AgentFormer: 0.01)
     # Training (AgentFormer: Adam 1e-4, ×0.5 every 10 epochs; ForceFormer trains 50 epochs).
     epochs: int = Field(50, gt=0)
@@ -328,7 +330,8 @@ class CVAEConfig(_Section):
     def _heads_divide_the_width(self) -> CVAEConfig:
         if self.d_model % self.n_heads:
             raise _expected("n_heads", f"a divisor of d_model = {self.d_model}", self.n_heads)
-        if self.output == "goal_residual" and self.variant == "baseline":  # it would aim at the true end point
+        aims_at_goal = self.output in ("goal_residual", "relaxation_residual")
+        if aims_at_goal and self.variant == "baseline":  # it would aim at the true end point
             raise _expected("output", "'offset' or 'cv_residual' for the baseline, which reads no goal", self.output)
         return self
 

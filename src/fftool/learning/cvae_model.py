@@ -37,6 +37,7 @@ def build_model(cfg: CVAEConfig) -> ForceFormer:
         n_layers=cfg.n_layers,
         z_dim=cfg.z_dim,
         output=cfg.output,
+        relaxation_steps=cfg.relaxation_steps,
         out_init_std=cfg.out_init_std,
     )
     if cfg.compile:  # in place: parameter names (and saved checkpoints) stay the same

@@ -326,30 +326,45 @@ def kl_divergence(q: Gaussian, p: Gaussian) -> Tensor:
 StepFeatures = Callable[[Tensor, int], Tensor]
 """(positions so far (B, A, s, 2) incl. the last observed, step index s - 1) -> decoder features (B, A, F)."""
 
-OutputType = Literal["offset", "cv_residual", "goal_residual"]
+OutputType = Literal["offset", "cv_residual", "goal_residual", "relaxation_residual"]
 """What the decoder's 2-vector at step s means (docs/cvae.md, "Output parametrisation"):
 offset: position - last observed position (AgentFormer's sn_out_type 'norm', its zara1 default);
 cv_residual: position - the constant-velocity extrapolation of the last observed step (fftool's option);
 goal_residual: position - the constant-acceleration curve that leaves the last observed position with the last
-observed step and reaches the goal at the last predicted step (fftool's option, for variants that read a goal).
+observed step and reaches the goal at the last predicted step (fftool's option, for variants that read a goal);
+relaxation_residual: position - the path under the driving force alone (Helbing & Molnár): each step relaxes
+from the last observed one toward a constant step w by λ = exp(-1 / relaxation_steps) per step, w the one that
+reaches the goal at the last predicted step (fftool's option, for variants that read a goal).
 """
 
 
 def output_base(
-    output: str, step: int, steps: int, last_pos: Tensor, last_step: Tensor | None, goal: Tensor | None
+    output: str,
+    step: int,
+    steps: int,
+    last_pos: Tensor,
+    last_step: Tensor | None,
+    goal: Tensor | None,
+    relaxation_steps: float = 5.0,
 ) -> Tensor | None:
     """The path the output at step `step` (0-based, of `steps`) is a residual over, as an offset from the last
     observed position (B, A, 2); None for "offset". last_step: the last observed displacement; goal: the
-    goal in the same frame (both (B, A, 2))."""
+    goal in the same frame (both (B, A, 2)); relaxation_steps: τ of "relaxation_residual", in time steps."""
     if output == "offset":
         return None
     assert last_step is not None, f"output {output!r} needs the last observed step"
     ahead = step + 1
     if output == "cv_residual":
         return ahead * last_step
-    assert goal is not None, "output 'goal_residual' needs the goal"
-    acceleration = (goal - last_pos - steps * last_step) / steps**2
-    return ahead * last_step + ahead**2 * acceleration
+    assert goal is not None, f"output {output!r} needs the goal"
+    if output == "goal_residual":
+        acceleration = (goal - last_pos - steps * last_step) / steps**2
+        return ahead * last_step + ahead**2 * acceleration
+    lam = math.exp(-1.0 / relaxation_steps)
+    relaxed = lam * (1 - lam**ahead) / (1 - lam)  # Σ_{s ≤ ahead} λˢ: how much of the last step is left so far
+    total = lam * (1 - lam**steps) / (1 - lam)
+    desired = (goal - last_pos - total * last_step) / (steps - total)  # the constant step w that reaches the goal
+    return ahead * desired + relaxed * (last_step - desired)
 
 
 class ForceFormer(nn.Module):
@@ -367,10 +382,11 @@ class ForceFormer(nn.Module):
         n_layers: int = 2,
         z_dim: int = 32,
         output: OutputType = "offset",
+        relaxation_steps: float = 5.0,
         out_init_std: float = 0.01,
     ) -> None:
         super().__init__()
-        self.z_dim, self.output = z_dim, output
+        self.z_dim, self.output, self.relaxation_steps = z_dim, output, relaxation_steps
         self.past_embed = TimeEmbedding(input_dim, d_model, dropout)
         self.future_embed = TimeEmbedding(input_dim, d_model, dropout)
         self.decoder_embed = TimeEmbedding(decoder_dim + z_dim, d_model, dropout)
@@ -432,7 +448,7 @@ class ForceFormer(nn.Module):
         predict; last_pos, last_step: (B, A, 2) the last observed position and displacement; features and
         features_k: the decoder's step features for one and for `k` samples per window (`decode`). k = 0 leaves
         the best-of-K term out (a warm-up on the posterior's reconstruction and the KL alone). The posterior draw
-        comes first, then the k prior draws, from `generator`. goal (B, A, 2): for output "goal_residual".
+        comes first, then the k prior draws, from `generator`. goal (B, A, 2): for outputs "goal_residual" and "relaxation_residual".
         """
         tokens, agent_context = self.encode_past(past, agent_mask)
         q = self.posterior(future, tokens, agent_mask)
@@ -514,7 +530,7 @@ class ForceFormer(nn.Module):
     ) -> Tensor:
         """Autoregressive rollout: (B, A, steps, 2) positions, read from the output head as `self.output`
         says (`output_base`: last_step (B, A, 2), the last observed displacement, is needed for "cv_residual"
-        and "goal_residual", goal (B, A, 2) for "goal_residual").
+        and the goal outputs, goal (B, A, 2) for "goal_residual" and "relaxation_residual").
 
         At step s the decoder reads every earlier step of every agent (and the same step of others) plus
         the whole context; its own outputs are fed back detached, through `features`, which also lets
@@ -547,7 +563,7 @@ class ForceFormer(nn.Module):
                 self_keys = (queries, cache.append(new_keys))
                 x = layer(x, keys, A, (allowed, cross), self_keys=self_keys, fold=repeat)
             delta = self.out(x).float()  # (B, A, 2)
-            base = output_base(self.output, step, steps, last_pos, last_step, goal)
+            base = output_base(self.output, step, steps, last_pos, last_step, goal, self.relaxation_steps)
             if base is not None:
                 delta = delta + base
             outputs.append(last_pos + delta)
