@@ -7,7 +7,8 @@ way there should follow.
   `cvae.output = "goal_residual"` is a residual over, `forceformer.output_base`);
 - "relaxation τ": the path under Helbing's driving force alone, F = (w − v) / τ with a constant desired step w:
   the step relaxes from the last observed one toward w by exp(−dt / τ) per step, w chosen so the path reaches the
-  goal at the last step; τ = 0 is the straight line to the goal at constant speed, τ → ∞ tends to a
+  goal at the last step (the path `cvae.output = "relaxation_residual"` is a residual over, with τ / dt time
+  steps); τ = 0 is the straight line to the goal at constant speed, τ → ∞ tends to a
   constant-acceleration curve.
 
 With `--place P --goal-store S`, only the val windows of place P, with the goals of a goal U-Net that never saw P
@@ -15,13 +16,13 @@ With `--place P --goal-store S`, only the val windows of place P, with the goals
 test window.
 
     python benchmarks/goal_curve_shapes.py --root /tmp/cpu/artifacts --benchmark zara1 --place hotel \\
-        --goal-store /tmp/fftool_goal_levers/recipe_s0@holdout-hotel-in-scene --out benchmarks/results/goal_curve_shapes.csv
+        --goal-store /tmp/fftool_goal_levers/recipe_s0@holdout-hotel-in-scene \\
+        --out benchmarks/results/goal_curve_shapes.csv
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import numpy as np
@@ -29,24 +30,25 @@ import torch
 from goal_curves import goal_curves
 from goal_hedge import module_goals, place_windows
 from goal_levers import PLACES, _append, _trained
+from torch import Tensor
 
 from fftool import pipeline, zoo
 from fftool.artifacts.store import ArtifactStore
 from fftool.config import EvaluateConfig, predictor_config, variant_section
 from fftool.learning.batches import load_scene_set
+from fftool.models.forceformer import output_base
 from fftool.science.metrics import ade_fde
 
 TAUS_S = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0)
 
 
-def relaxation_curve(last: torch.Tensor, step: torch.Tensor, goal: torch.Tensor, steps: int, lam: float) -> torch.Tensor:
-    """(..., steps, 2) positions whose step n is w + (step − w) λⁿ, reaching `goal` at the last one: the path under
-    a driving force of relaxation factor λ = exp(−dt / τ) toward a constant step w. last, step, goal: (..., 2)."""
-    powers = lam ** torch.arange(1, steps + 1, dtype=last.dtype)
-    reached = torch.cumsum(powers, 0)[:, None]  # Σ_{s ≤ n} λˢ, (steps, 1)
-    ahead = torch.arange(1, steps + 1, dtype=last.dtype)[:, None]
-    w = (goal - last - step * reached[-1]) / (steps - reached[-1])
-    return last[..., None, :] + ahead * w[..., None, :] + reached * (step - w)[..., None, :]
+def relaxation_curve(last: Tensor, step: Tensor, goal: Tensor, steps: int, tau: float) -> Tensor:
+    """(..., steps, 2) positions of the path `cvae.output = "relaxation_residual"` decodes over, τ in time steps
+    (τ = 0: the straight line). last, step, goal: (..., 2)."""
+    if tau == 0:
+        return last[..., None, :] + torch.arange(1, steps + 1)[:, None] * ((goal - last) / steps)[..., None, :]
+    ahead = [output_base("relaxation_residual", s, steps, last, step, goal, tau) for s in range(steps)]
+    return last[..., None, :] + torch.stack(ahead, -2)
 
 
 def main() -> None:
@@ -75,8 +77,8 @@ def main() -> None:
     plan = scenes.plan(
         place_windows(scenes, args.place), evaluate.batch_windows, evaluate.max_agent_pairs, np.random.default_rng(0)
     )
-    curves = {"acceleration": None} | {f"relaxation {tau:g} s": math.exp(-dt / tau) if tau else 0.0 for tau in
-                                      (float(v) for v in args.taus.split(","))}
+    taus = [float(v) for v in args.taus.split(",")]
+    curves = {"acceleration": None} | {f"relaxation {tau:g} s": tau / dt for tau in taus}
     sums = {name: np.zeros(2) for name in curves}
     count = 0
     for members in plan:
@@ -87,9 +89,11 @@ def main() -> None:
         last = batch.xy[:, None, :, obs_len - 1].expand_as(goal_k)
         step = (batch.xy[:, None, :, obs_len - 1] - batch.xy[:, None, :, obs_len - 2]).expand_as(goal_k)
         steps, mask = batch.xy.shape[2] - obs_len, batch.agent_mask
-        for name, lam in curves.items():
-            path = goal_curves(batch.xy, goal_k, obs_len) if lam is None else relaxation_curve(
-                last, step, goal_k, steps, lam
+        for name, tau in curves.items():
+            path = (
+                goal_curves(batch.xy, goal_k, obs_len)
+                if tau is None
+                else relaxation_curve(last, step, goal_k, steps, tau)
             )
             ade, fde = ade_fde(path, batch.xy[:, :, obs_len:])  # (B, K, A)
             sums[name] += [float((ade.min(1).values * mask).sum()), float((fde.min(1).values * mask).sum())]

@@ -448,7 +448,8 @@ class ForceFormer(nn.Module):
         predict; last_pos, last_step: (B, A, 2) the last observed position and displacement; features and
         features_k: the decoder's step features for one and for `k` samples per window (`decode`). k = 0 leaves
         the best-of-K term out (a warm-up on the posterior's reconstruction and the KL alone). The posterior draw
-        comes first, then the k prior draws, from `generator`. goal (B, A, 2): for outputs "goal_residual" and "relaxation_residual".
+        comes first, then the k prior draws, from `generator`. goal (B, A, 2): for the goal outputs
+        ("goal_residual", "relaxation_residual").
         """
         tokens, agent_context = self.encode_past(past, agent_mask)
         q = self.posterior(future, tokens, agent_mask)
