@@ -14,6 +14,8 @@ from fftool.reporting.doc_tables import (
     hedge_table,
     largest_retrain_change,
     output_lever_table,
+    path_choice,
+    path_table,
     retrain_spread_table,
     retrain_table,
     seed_gap_table,
@@ -260,6 +262,31 @@ def test_the_hedge_is_kept_only_when_both_metrics_gain_past_the_bar_and_twice_th
     assert not hedge_choice(csv, "dr", cells, "first", (0, 2, 4), 0.007)["kept"]  # minFDE's 6 mm is under 7 mm
     assert hedge_choice(csv, "dr", cells, "first", (0, 4), 0.005)["m"] == 4  # the best of the grid given
     assert not hedge_choice(csv, "dr", cells, "first", (0, 4), 0.005)["kept"]  # minFDE gains 2 mm only
+
+
+def test_paths_are_tabulated_and_chosen_against_the_acceleration_curve_by_their_paired_error(tmp_path: Path) -> None:
+    rows = []
+    for seed, gain in enumerate((0.006, 0.008, 0.010)):  # relaxation 2 s: minADE gain 0.008, sd 0.002, 2 SE 0.0023
+        for benchmark, place, base in (("zara1", "hotel", 0.20), ("hotel", "zara", 0.30)):
+            rows.append((benchmark, place, seed, "acceleration", base, 0.4))
+            rows.append((benchmark, place, seed, "relaxation 2 s", base - gain, 0.4))
+            rows.append((benchmark, place, seed, "relaxation 0 s", base + 0.001, 0.4))
+    rows.append(("zara1", "val part", 0, "acceleration", 0.25, 0.4))
+    rows.append(("zara1", "val part", 0, "relaxation 2 s", 0.9, 0.4))  # replaced by the later row
+    rows.append(("zara1", "val part", 0, "relaxation 0 s", 0.26, 0.4))
+    rows.append(("zara1", "val part", 0, "relaxation 2 s", 0.24, 0.4))
+    csv = tmp_path / "paths.csv"
+    columns = ["benchmark", "place", "goal_seed", "curve", "min_ade_m", "min_fde_m"]
+    pd.DataFrame(rows, columns=columns).to_csv(csv, index=False)
+    cells = [("zara1", "hotel"), ("hotel", "zara")]
+    table = path_table(csv, cells, ["zara1"]).splitlines()
+    assert table[2] == "| acceleration | 0.200 | 0.300 | **0.2500** |  | 0.250 |"
+    assert table[3] == "| relaxation 2 s | 0.192 | 0.292 | **0.2420** | -0.0080 ± 0.0023 | 0.240 |"
+    assert table[4] == "| relaxation 0 s | 0.201 | 0.301 | **0.2510** | +0.0010 ± 0.0000 | 0.260 |"
+    found = path_choice(csv, cells, 0.005)
+    assert found["curve"] == "relaxation 2 s" and found["kept"]
+    assert abs(found["ade_gain"] - 0.008) < 1e-12 and abs(found["ade_2se"] - 2 * 0.002 / 3**0.5) < 1e-12
+    assert not path_choice(csv, cells, 0.009)["kept"]  # 8 mm is under a 9 mm bar
 
 
 def test_agentformers_end_points_as_goals_are_tabulated_against_agentformer_alone(tmp_path: Path) -> None:

@@ -295,16 +295,16 @@ def _hedge_rows(hedge_csv: Path | str, variant: str, pick: str, code: str) -> pd
     return frame.drop_duplicates(["benchmark", "place", "goal_seed", "m"], keep="last")
 
 
-def _per_cell(rows: pd.DataFrame) -> pd.DataFrame:
-    """minADE and minFDE per (m, benchmark, place), each the mean over the goal-module seeds."""
-    return rows.groupby(["m", "benchmark", "place"])[["min_ade_m", "min_fde_m"]].mean()
+def _per_cell(rows: pd.DataFrame, arm: str = "m") -> pd.DataFrame:
+    """minADE and minFDE per (arm, benchmark, place), each the mean over the goal-module seeds."""
+    return rows.groupby([arm, "benchmark", "place"])[["min_ade_m", "min_fde_m"]].mean()
 
 
-def _screen_means(rows: pd.DataFrame, cells: Sequence[tuple[str, str]]) -> pd.DataFrame:
-    """minADE and minFDE per (m, goal-module seed), each the mean over `cells`; a (m, seed) short of a cell is
+def _screen_means(rows: pd.DataFrame, cells: Sequence[tuple[str, str]], arm: str = "m") -> pd.DataFrame:
+    """minADE and minFDE per (arm, goal-module seed), each the mean over `cells`; an (arm, seed) short of a cell is
     dropped."""
     rows = rows[rows[["benchmark", "place"]].apply(tuple, axis=1).isin(cells)]
-    grouped = rows.groupby(["m", "goal_seed"])
+    grouped = rows.groupby([arm, "goal_seed"])
     means = grouped[["min_ade_m", "min_fde_m"]].mean()
     return means[grouped.size() == len(cells)]
 
@@ -400,6 +400,42 @@ def hedge_table(
     header = ["m", *(column.format(benchmark=b, place=p) for b, p in cells), "screen mean",
               "minADE vs m = 0 ± 2 SE", "minFDE vs m = 0 ± 2 SE"]  # fmt: skip
     return _markdown(header, rows)
+
+
+def _path_rows(curves_csv: Path | str) -> pd.DataFrame:
+    """benchmarks/goal_curve_shapes.py's rows, the last of each (cell, goal-module seed, curve)."""
+    return pd.read_csv(curves_csv).drop_duplicates(["benchmark", "place", "goal_seed", "curve"], keep="last")
+
+
+def path_choice(curves_csv: Path | str, cells: Sequence[tuple[str, str]], bar: float) -> dict[str, float | str | bool]:
+    """docs/experiments/goal-paths.md's rule: the relaxation path with the lowest screen mean minADE, kept when it
+    lowers it against the constant-acceleration curve by more than `bar` (m) and by more than twice its standard
+    error over the goal-module seeds."""
+    screen = _screen_means(_path_rows(curves_csv), cells, "curve")
+    means = screen.groupby(level="curve")["min_ade_m"].mean()
+    best = str(means[means.index.str.startswith("relaxation")].idxmin())
+    gain, se2 = _paired_change(screen.loc["acceleration"] - screen.loc[best])["min_ade_m"]
+    return {"curve": best, "ade_gain": gain, "ade_2se": se2, "kept": bool(gain > bar and gain > se2)}
+
+
+def path_table(curves_csv: Path | str, cells: Sequence[tuple[str, str]], val_parts: Sequence[str]) -> str:
+    """Each curve's minADE per screen cell (the mean over the goal-module seeds), the cells' mean and its paired
+    change from the constant-acceleration curve (± 2 SE over the seeds), then each benchmark's whole val part
+    with the shipped goal module."""
+    rows = _path_rows(curves_csv)
+    per_cell, screen = _per_cell(rows, "curve"), _screen_means(rows, cells, "curve")
+    reference = screen.loc["acceleration"]
+    whole = rows[rows["place"] == "val part"].set_index(["curve", "benchmark"])["min_ade_m"]
+    lines = []
+    for curve in rows["curve"].unique():
+        by_seed = screen.loc[curve]
+        change = "" if curve == "acceleration" else _paired_gaps(by_seed - reference)[0]
+        cells_text = [f"{per_cell.loc[(curve, b, p), 'min_ade_m']:.3f}" for b, p in cells]
+        parts = [f"{whole.loc[(curve, b)]:.3f}" for b in val_parts]
+        lines.append([curve, *cells_text, f"**{by_seed['min_ade_m'].mean():.4f}**", change, *parts])
+    header = ["path (minADE, m)", *(f"{b}, {p} held out" for b, p in cells), "screen mean",
+              "vs acceleration ± 2 SE", *(f"{b} val part" for b in val_parts)]  # fmt: skip
+    return _markdown(header, lines)
 
 
 def _settled_below(paired: pd.DataFrame, variant: str, metric: str) -> bool:
