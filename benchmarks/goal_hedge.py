@@ -8,7 +8,8 @@ the windows of place P, with the goals of the benchmark's goal U-Net in S (a `go
 store: a module that never saw P); without, the whole val part and the shipped goal U-Net. Reads no test window.
 Appends two CSV rows per m, one per pick (m = 0: the variant as shipped; m = K: AgentFormer alone). `--code prior`
 decodes each goal from a draw of the prior (or the variant's DLow sampler's code) instead of the profile's code;
-`--goals agentformer` gives the variant the end points of AgentFormer's K samples as its K goals (m = 0).
+`--goals agentformer` gives the variant the end points of AgentFormer's K samples as its K goals (m = 0); `--cvae`
+scores another CVAE of the variant (one retrained with a lever) in the shipped one's place.
 
     python benchmarks/goal_hedge.py --root /tmp/cpu/artifacts --benchmark zara1 --variant dr --place hotel \\
         --goal-store /tmp/fftool_goal_levers/recipe_s0@holdout-hotel-in-scene --out benchmarks/results/goal_hedge.csv
@@ -28,6 +29,7 @@ import torch
 from goal_levers import PLACES, _append, _trained
 
 from fftool import pipeline, zoo
+from fftool.api import find_artifact
 from fftool.artifacts.schema import GOALS_FILE, GOALS_INDEX_FILE
 from fftool.artifacts.store import Artifact, ArtifactStore
 from fftool.config import EvaluateConfig, PipelineConfig, predictor_config, variant_section
@@ -109,6 +111,7 @@ def main() -> None:
         default="module",
         help="the K goals: the goal U-Net's, or the end points of AgentFormer's K samples (then m = 0 only)",
     )
+    parser.add_argument("--cvae", help="the variant's CVAE (cvae/<id> in --root) instead of the shipped one")
     parser.add_argument("--hedges", default=",".join(map(str, HEDGES)), help="values of m, comma-separated")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
@@ -148,7 +151,8 @@ def main() -> None:
         load_sampler(shipped["dlow", "baseline"], device),
     )
     base = per_sample(baseline, scenes, plan, obs_len, device)
-    trained = load_model(shipped["cvae", args.variant], device)
+    cvae = find_artifact(args.cvae, "cvae", args.root)[1] if args.cvae else shipped["cvae", args.variant]
+    trained = load_model(cvae, device)
     dlow = shipped.get(("dlow", args.variant))
     sampler = load_sampler(dlow, device) if dlow is not None and variant_cfg.fair_code == "prior" else None
     records = []
@@ -171,6 +175,7 @@ def main() -> None:
                 {
                     "benchmark": benchmark,
                     "variant": args.variant,
+                    "cvae": cvae.id if args.cvae else "shipped",
                     "place": args.place or "val part",
                     "goals": args.goals,
                     "goal_unet": goal_name,
