@@ -9,6 +9,7 @@ which `fftool models validate` records for the shipped models). Reads no test wi
 
 A DLow sampler (dlow/<id>) is scored over the CVAE it was trained on, on the sampler's own validation subset.
 `--val-windows N` scores every model on the same N validation windows instead (drawn with the CVAE's seed).
+`--residual-scale 0` scores the path a model's output is a residual over (its `cvae.output`), with no network.
 """
 
 from __future__ import annotations
@@ -35,9 +36,16 @@ def main() -> None:
     parser.add_argument(
         "--val-windows", type=int, help="score this many validation windows (the same for every model of a seed)"
     )
+    parser.add_argument(
+        "--residual-scale",
+        type=float,
+        default=1.0,
+        help="the decoder's output head times this factor (0: the path its output is a residual over, no network)",
+    )
     args = parser.parse_args()
     writer = csv.writer(sys.stdout)
-    writer.writerow(["model", "variant", "benchmark", "best_epoch", "val_windows", "fair_min_ade_m", "fair_min_fde_m"])
+    header = ["model", "variant", "benchmark", "best_epoch", "val_windows", "fair_min_ade_m", "fair_min_fde_m"]
+    writer.writerow([*header, "output", "residual_scale"])
     store, goals = find_artifact(args.goals, "goals", args.root)
     for ref in args.models:
         dlow = find_artifact(ref, "dlow", args.root)[1] if str(ref).startswith("dlow/") else None
@@ -45,11 +53,14 @@ def main() -> None:
         cvae = found_cvae if dlow else find_artifact(ref, "cvae", args.root)[1]
         if cvae is None:
             sys.exit(f"{ref}: the CVAE it samples from is not in {args.root}")
-        found = fair_validation(store, goals, cvae, dlow, torch.device("cpu"), args.code, args.val_windows)
+        found = fair_validation(
+            store, goals, cvae, dlow, torch.device("cpu"), args.code, args.val_windows, args.residual_scale
+        )
         stats = cvae.manifest.stats
         numbers = [f"{found['min_ade_m']:.4f}", f"{found['min_fde_m']:.4f}"]
         best = (dlow or cvae).manifest.stats["best_epoch"]
-        writer.writerow([(dlow or cvae).id, stats["variant"], stats["benchmark"], best, found["windows"], *numbers])
+        row = [(dlow or cvae).id, stats["variant"], stats["benchmark"], best, found["windows"], *numbers]
+        writer.writerow([*row, cvae.manifest.params["output"], args.residual_scale])
 
 
 if __name__ == "__main__":
