@@ -8,6 +8,7 @@ import pandas as pd
 
 from fftool.reporting.doc_tables import (
     agentformer_goals_table,
+    arms_validation_table,
     code_table,
     gap_table,
     hedge_choice,
@@ -287,6 +288,20 @@ def test_paths_are_tabulated_and_chosen_against_the_acceleration_curve_by_their_
     assert found["curve"] == "relaxation 2 s" and found["kept"]
     assert abs(found["ade_gain"] - 0.008) < 1e-12 and abs(found["ade_2se"] - 2 * 0.002 / 3**0.5) < 1e-12
     assert not path_choice(csv, cells, 0.009)["kept"]  # 8 mm is under a 9 mm bar
+
+
+def test_arms_are_averaged_over_five_benchmarks_and_set_against_a_reference(tmp_path: Path) -> None:
+    benchmarks = ["eth", "hotel", "univ", "zara1", "zara2"]
+    rows = [("shipped", b, 0.20, 0.30) for b in benchmarks]
+    rows += [("path", b, 0.20 - 0.01 * i, 0.30) for i, b in enumerate(benchmarks)]  # average 0.18
+    rows += [("two only", "hotel", 0.3, 0.4), ("two only", "zara1", 0.5, 0.6)]
+    rows += [("shipped", "eth", 0.25, 0.35)]  # a rerun: the later row counts
+    csv = tmp_path / "arms.csv"
+    pd.DataFrame(rows, columns=["arm", "benchmark", "fair_min_ade_m", "fair_min_fde_m"]).to_csv(csv, index=False)
+    table = arms_validation_table(csv, "shipped").splitlines()
+    assert table[2] == "| shipped | 0.250 / 0.350 |" + " 0.200 / 0.300 |" * 4 + " **0.2100 / 0.3100** |  |"
+    assert table[3].endswith("| 0.160 / 0.300 | **0.1800 / 0.3000** | -0.0300 / -0.0100 |")
+    assert table[4] == "| two only |  | 0.300 / 0.400 |  | 0.500 / 0.600 |  |  |  |"
 
 
 def test_agentformers_end_points_as_goals_are_tabulated_against_agentformer_alone(tmp_path: Path) -> None:

@@ -407,11 +407,16 @@ def _path_rows(curves_csv: Path | str) -> pd.DataFrame:
     return pd.read_csv(curves_csv).drop_duplicates(["benchmark", "place", "goal_seed", "curve"], keep="last")
 
 
+def path_screen(curves_csv: Path | str, cells: Sequence[tuple[str, str]]) -> pd.DataFrame:
+    """minADE and minFDE per (curve, goal-module seed), each the mean over the screen's `cells`."""
+    return _screen_means(_path_rows(curves_csv), cells, "curve")
+
+
 def path_choice(curves_csv: Path | str, cells: Sequence[tuple[str, str]], bar: float) -> dict[str, float | str | bool]:
     """docs/experiments/goal-paths.md's rule: the relaxation path with the lowest screen mean minADE, kept when it
     lowers it against the constant-acceleration curve by more than `bar` (m) and by more than twice its standard
     error over the goal-module seeds."""
-    screen = _screen_means(_path_rows(curves_csv), cells, "curve")
+    screen = path_screen(curves_csv, cells)
     means = screen.groupby(level="curve")["min_ade_m"].mean()
     best = str(means[means.index.str.startswith("relaxation")].idxmin())
     gain, se2 = _paired_change(screen.loc["acceleration"] - screen.loc[best])["min_ade_m"]
@@ -423,7 +428,7 @@ def path_table(curves_csv: Path | str, cells: Sequence[tuple[str, str]], val_par
     change from the constant-acceleration curve (± 2 SE over the seeds), then each benchmark's whole val part
     with the shipped goal module."""
     rows = _path_rows(curves_csv)
-    per_cell, screen = _per_cell(rows, "curve"), _screen_means(rows, cells, "curve")
+    per_cell, screen = _per_cell(rows, "curve"), path_screen(curves_csv, cells)
     reference = screen.loc["acceleration"]
     whole = rows[rows["place"] == "val part"].set_index(["curve", "benchmark"])["min_ade_m"]
     lines = []
@@ -436,6 +441,24 @@ def path_table(curves_csv: Path | str, cells: Sequence[tuple[str, str]], val_par
     header = ["path (minADE, m)", *(f"{b}, {p} held out" for b, p in cells), "screen mean",
               "vs acceleration ± 2 SE", *(f"{b} val part" for b in val_parts)]  # fmt: skip
     return _markdown(header, lines)
+
+
+def arms_validation_table(arms_csv: Path | str, reference: str) -> str:
+    """Fair validation minADE / minFDE per benchmark of each arm (`benchmarks/fair_validation.py` rows with an `arm`
+    column, in the file's order), the five-benchmark average where an arm has all five, and its change from
+    `reference`'s average."""
+    frame = pd.read_csv(arms_csv).drop_duplicates(["arm", "benchmark"], keep="last")
+    averages = frame.groupby("arm")[["fair_min_ade_m", "fair_min_fde_m"]].mean()
+    rows = []
+    for arm, found in frame.groupby("arm", sort=False):
+        by = found.set_index("benchmark")
+        cells = [_pair(by.fair_min_ade_m[b], by.fair_min_fde_m[b]) if b in by.index else "" for b in BENCHMARKS]
+        complete = by.index.isin(BENCHMARKS).sum() == len(BENCHMARKS)
+        average = f"**{_pair(*averages.loc[arm], digits=4)}**" if complete else ""
+        change = averages.loc[arm] - averages.loc[reference]
+        gap = f"{change.iloc[0]:+.4f} / {change.iloc[1]:+.4f}" if complete and arm != reference else ""
+        rows.append([arm, *cells, average, gap])
+    return _markdown(["arm", *BENCHMARKS, "average", f"vs {reference}"], rows)
 
 
 def _settled_below(paired: pd.DataFrame, variant: str, metric: str) -> bool:
