@@ -30,25 +30,14 @@ import torch
 from goal_curves import goal_curves
 from goal_hedge import module_goals, place_windows
 from goal_levers import PLACES, _append, _trained
-from torch import Tensor
 
 from fftool import pipeline, zoo
 from fftool.artifacts.store import ArtifactStore
 from fftool.config import EvaluateConfig, predictor_config, variant_section
 from fftool.learning.batches import load_scene_set
-from fftool.models.forceformer import output_base
 from fftool.science.metrics import ade_fde
 
 TAUS_S = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0)
-
-
-def relaxation_curve(last: Tensor, step: Tensor, goal: Tensor, steps: int, tau: float) -> Tensor:
-    """(..., steps, 2) positions of the path `cvae.output = "relaxation_residual"` decodes over, τ in time steps
-    (τ = 0: the straight line). last, step, goal: (..., 2)."""
-    if tau == 0:
-        return last[..., None, :] + torch.arange(1, steps + 1)[:, None] * ((goal - last) / steps)[..., None, :]
-    ahead = [output_base("relaxation_residual", s, steps, last, step, goal, tau) for s in range(steps)]
-    return last[..., None, :] + torch.stack(ahead, -2)
 
 
 def main() -> None:
@@ -78,7 +67,8 @@ def main() -> None:
         place_windows(scenes, args.place), evaluate.batch_windows, evaluate.max_agent_pairs, np.random.default_rng(0)
     )
     taus = [float(v) for v in args.taus.split(",")]
-    curves = {"acceleration": None} | {f"relaxation {tau:g} s": tau / dt for tau in taus}
+    curves = {"acceleration": ("goal_residual", 0.0)}  # name -> cvae.output, relaxation_steps
+    curves |= {f"relaxation {tau:g} s": ("relaxation_residual", tau / dt) for tau in taus}
     sums = {name: np.zeros(2) for name in curves}
     count = 0
     for members in plan:
@@ -86,15 +76,9 @@ def main() -> None:
         rows = batch.row.numpy()
         positions = np.where(rows >= 0, np.searchsorted(scenes.data.row, rows), 0)
         goal_k = goals[torch.as_tensor(positions)].transpose(1, 2)  # (B, K, A, 2)
-        last = batch.xy[:, None, :, obs_len - 1].expand_as(goal_k)
-        step = (batch.xy[:, None, :, obs_len - 1] - batch.xy[:, None, :, obs_len - 2]).expand_as(goal_k)
-        steps, mask = batch.xy.shape[2] - obs_len, batch.agent_mask
-        for name, tau in curves.items():
-            path = (
-                goal_curves(batch.xy, goal_k, obs_len)
-                if tau is None
-                else relaxation_curve(last, step, goal_k, steps, tau)
-            )
+        mask = batch.agent_mask
+        for name, (output, relaxation_steps) in curves.items():
+            path = goal_curves(batch.xy, goal_k, obs_len, output, relaxation_steps)
             ade, fde = ade_fde(path, batch.xy[:, :, obs_len:])  # (B, K, A)
             sums[name] += [float((ade.min(1).values * mask).sum()), float((fde.min(1).values * mask).sum())]
         count += int(mask.sum())

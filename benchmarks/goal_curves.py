@@ -27,12 +27,15 @@ from fftool.models.forceformer import output_base
 from fftool.science.metrics import ade_fde
 
 
-def goal_curves(xy: torch.Tensor, goals: torch.Tensor, obs_len: int) -> torch.Tensor:
-    """(B, K, A, T, 2) curves from paths xy (B, A, obs_len + T, 2) to goals (B, K, A, 2), world metres."""
+def goal_curves(
+    xy: torch.Tensor, goals: torch.Tensor, obs_len: int, output: str = "goal_residual", relaxation_steps: float = 5.0
+) -> torch.Tensor:
+    """(B, K, A, T, 2) curves from paths xy (B, A, obs_len + T, 2) to goals (B, K, A, 2), world metres: the path a
+    decoder with `cvae.output = output` is a residual over (`forceformer.output_base`)."""
     last = xy[:, None, :, obs_len - 1]
     step = last - xy[:, None, :, obs_len - 2]
     steps = xy.shape[2] - obs_len
-    ahead = [output_base("goal_residual", s, steps, last, step, goals) for s in range(steps)]
+    ahead = [output_base(output, s, steps, last, step, goals, relaxation_steps) for s in range(steps)]
     return last[..., None, :] + torch.stack(ahead, -2)
 
 

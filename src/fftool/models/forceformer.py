@@ -349,7 +349,8 @@ def output_base(
 ) -> Tensor | None:
     """The path the output at step `step` (0-based, of `steps`) is a residual over, as an offset from the last
     observed position (B, A, 2); None for "offset". last_step: the last observed displacement; goal: the
-    goal in the same frame (both (B, A, 2)); relaxation_steps: τ of "relaxation_residual", in time steps."""
+    goal in the same frame (both (B, A, 2)); relaxation_steps: τ of "relaxation_residual", in time steps (0: the
+    straight line to the goal at constant speed)."""
     if output == "offset":
         return None
     assert last_step is not None, f"output {output!r} needs the last observed step"
@@ -360,7 +361,7 @@ def output_base(
     if output == "goal_residual":
         acceleration = (goal - last_pos - steps * last_step) / steps**2
         return ahead * last_step + ahead**2 * acceleration
-    lam = math.exp(-1.0 / relaxation_steps)
+    lam = math.exp(-1.0 / relaxation_steps) if relaxation_steps > 0 else 0.0  # τ = 0: the straight line
     relaxed = lam * (1 - lam**ahead) / (1 - lam)  # Σ_{s ≤ ahead} λˢ: how much of the last step is left so far
     total = lam * (1 - lam**steps) / (1 - lam)
     desired = (goal - last_pos - total * last_step) / (steps - total)  # the constant step w that reaches the goal

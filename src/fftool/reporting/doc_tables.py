@@ -428,7 +428,7 @@ def path_table(curves_csv: Path | str, cells: Sequence[tuple[str, str]], val_par
     change from the constant-acceleration curve (± 2 SE over the seeds), then each benchmark's whole val part
     with the shipped goal module."""
     rows = _path_rows(curves_csv)
-    per_cell, screen = _per_cell(rows, "curve"), path_screen(curves_csv, cells)
+    per_cell, screen = _per_cell(rows, "curve"), _screen_means(rows, cells, "curve")
     reference = screen.loc["acceleration"]
     whole = rows[rows["place"] == "val part"].set_index(["curve", "benchmark"])["min_ade_m"]
     lines = []
